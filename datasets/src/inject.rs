@@ -1,0 +1,204 @@
+//! Fault injection: which fault, from when, and how it bends what the PLC reads
+//! and what the actuators do.
+
+use diagnoser::fault::FaultTarget;
+use diagnoser::{FaultTemplate, MS, Plant, SignalKind, SignalTable, Time, TimeUnit, time};
+use serde::Serialize;
+
+/// Width of the spurious pulse of `unexpected_rise` / `unexpected_fall`.
+pub const PULSE: Time = 50 * MS;
+
+/// A fault as asked for on the command line: `F2@600s` or `stuck1(C4)@10min`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FaultSpec {
+    /// A label of the plant file (`F2`) or a template (`stuck1(C4)`).
+    pub what: String,
+    /// Onset, from the start of the run.
+    pub onset: Time,
+}
+
+impl std::str::FromStr for FaultSpec {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (what, at) = text
+            .rsplit_once('@')
+            .ok_or_else(|| format!("bad fault '{text}': expected LABEL@TIME, e.g. F2@600s"))?;
+        if what.trim().is_empty() {
+            return Err(format!("bad fault '{text}': missing fault label before '@'"));
+        }
+        let onset = time::parse_duration(at).map_err(|e| format!("bad fault '{text}': {e}"))?;
+        Ok(FaultSpec { what: what.trim().to_string(), onset })
+    }
+}
+
+/// A fault resolved against a plant: ready to inject, and to write to `truth.json`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Injection {
+    /// The label (from the plant file, or the template text itself).
+    pub label: String,
+    /// What goes wrong.
+    pub template: FaultTemplate,
+    /// From when.
+    pub onset: Time,
+}
+
+impl Injection {
+    /// Resolves a command-line fault against `plant`: a known label, or a template
+    /// whose arguments name the plant's signals and elements.
+    pub fn resolve(spec: &FaultSpec, plant: &Plant) -> Result<Injection, String> {
+        if let Some(def) = plant.fault(&spec.what) {
+            return Ok(Injection { label: def.label.clone(), template: def.template.clone(), onset: spec.onset });
+        }
+        let template: FaultTemplate = spec.what.parse().map_err(|e: String| {
+            if spec.what.contains('(') {
+                e
+            } else {
+                let labels: Vec<&str> = plant.faults.iter().map(|f| f.label.as_str()).take(16).collect();
+                format!(
+                    "unknown fault '{}' for plant '{}' (known: {}{})",
+                    spec.what,
+                    plant.name,
+                    labels.join(", "),
+                    if plant.faults.len() > 16 { ", …" } else { "" }
+                )
+            }
+        })?;
+        let kind = |name: &str| plant.signals.id(name).map(|id| plant.signals.get(id).kind);
+        match template.target() {
+            FaultTarget::Sensor | FaultTarget::Actuator => {
+                let want = if template.target() == FaultTarget::Sensor { SignalKind::Sensor } else { SignalKind::Actuator };
+                let s = template.arguments()[0];
+                match kind(s) {
+                    None => return Err(format!("unknown signal '{s}' in fault '{template}'")),
+                    Some(k) if k != want => return Err(format!("'{s}' in fault '{template}' is not {}", want.with_article())),
+                    Some(_) => {}
+                }
+            }
+            FaultTarget::Element => {
+                let args = template.arguments();
+                let Some(part) = plant.parts.iter().find(|p| p.element.as_deref() == Some(args[0])) else {
+                    return Err(format!("unknown element '{}' in fault '{template}'", args[0]));
+                };
+                for s in &args[1..] {
+                    if !part.sensors.iter().any(|&id| plant.signals.name(id) == *s) {
+                        return Err(format!("'{s}' in fault '{template}' is not a sensor of part '{}'", part.name));
+                    }
+                }
+            }
+        }
+        Ok(Injection { label: spec.what.clone(), template, onset: spec.onset })
+    }
+}
+
+/// One entry of `truth.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TruthEntry {
+    /// Fault label.
+    pub label: String,
+    /// Template text, e.g. `stuck1(C4)`.
+    pub template: String,
+    /// Onset in the log's time unit.
+    pub onset: serde_json::Value,
+}
+
+/// The ground truth of a run, as written to `truth.json`.
+pub fn truth_json(faults: &[Injection], unit: TimeUnit) -> serde_json::Value {
+    let entries: Vec<TruthEntry> = faults
+        .iter()
+        .map(|f| TruthEntry {
+            label: f.label.clone(),
+            template: f.template.to_string(),
+            onset: time_value(f.onset, unit),
+        })
+        .collect();
+    serde_json::json!({ "faults": entries })
+}
+
+/// A time as a JSON number in `unit`: an integer when exact.
+pub fn time_value(t: Time, unit: TimeUnit) -> serde_json::Value {
+    if t % unit.nanos() == 0 {
+        serde_json::Value::from(t / unit.nanos())
+    } else {
+        serde_json::Value::from(t as f64 / unit.nanos() as f64)
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SensorMode {
+    Stuck(bool),
+    /// Spurious pulse to this value, at the first scan from onset where the true
+    /// value is the opposite; `Some(start)` once it began.
+    Pulse(bool, Option<Time>),
+}
+
+#[derive(Debug, Clone)]
+struct SensorFault {
+    index: usize,
+    onset: Time,
+    mode: SensorMode,
+}
+
+/// Applies sensor and actuator faults, scan by scan.
+#[derive(Debug, Clone, Default)]
+pub struct SensorInjector {
+    sensors: Vec<SensorFault>,
+    actuators: Vec<(usize, Time, bool)>,
+}
+
+impl SensorInjector {
+    /// Collects the signal faults of `faults` (element faults are the physics' job).
+    pub fn new(signals: &SignalTable, faults: &[Injection]) -> Self {
+        let mut out = SensorInjector::default();
+        for f in faults {
+            let Some(index) = f.template.signal().and_then(|s| signals.id(s)).map(|id| id.index()) else {
+                continue;
+            };
+            let mode = match &f.template {
+                FaultTemplate::Stuck0(_) => SensorMode::Stuck(false),
+                FaultTemplate::Stuck1(_) => SensorMode::Stuck(true),
+                FaultTemplate::UnexpectedRise(_) => SensorMode::Pulse(true, None),
+                FaultTemplate::UnexpectedFall(_) => SensorMode::Pulse(false, None),
+                FaultTemplate::ActuatorStuck0(_) => {
+                    out.actuators.push((index, f.onset, false));
+                    continue;
+                }
+                FaultTemplate::ActuatorStuck1(_) => {
+                    out.actuators.push((index, f.onset, true));
+                    continue;
+                }
+                _ => continue,
+            };
+            out.sensors.push(SensorFault { index, onset: f.onset, mode });
+        }
+        out
+    }
+
+    /// Replaces true sensor values in `io` by what a faulty sensor reports at `t`.
+    pub fn apply_sensors(&mut self, t: Time, io: &mut [bool]) {
+        for f in &mut self.sensors {
+            if t < f.onset {
+                continue;
+            }
+            match &mut f.mode {
+                SensorMode::Stuck(v) => io[f.index] = *v,
+                SensorMode::Pulse(v, start) => match *start {
+                    None if io[f.index] != *v => {
+                        *start = Some(t);
+                        io[f.index] = *v;
+                    }
+                    Some(s) if t < s + PULSE => io[f.index] = *v,
+                    _ => {}
+                },
+            }
+        }
+    }
+
+    /// Replaces orders in `physical` by what a faulty actuator does at `t`.
+    pub fn apply_actuators(&self, t: Time, physical: &mut [bool]) {
+        for &(index, onset, v) in &self.actuators {
+            if t >= onset {
+                physical[index] = v;
+            }
+        }
+    }
+}

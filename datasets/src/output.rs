@@ -1,0 +1,164 @@
+//! Writing a simulated run to a directory: `events.csv`, `intervals.csv`,
+//! optionally `scans.csv`, `truth.json`, `damage.json` and `plant.toml`.
+//!
+//! Files are written into a hidden staging directory inside the target and moved
+//! into place only once the run has finished, so a failed or interrupted run never
+//! leaves half-written files, nor replaces those of an earlier run.
+
+use std::fs::{self, File};
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use diagnoser::log::{EventWriter, IntervalWriter, ScanWriter};
+use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
+
+use crate::inject::{time_value, truth_json};
+use crate::sim::{Controller, Physics, ScanSink, SimConfig, SimReport, run};
+
+/// Where and what to write.
+#[derive(Debug, Clone)]
+pub struct RunFiles {
+    /// Output directory (created if needed).
+    pub dir: PathBuf,
+    /// Also write the wide `scans.csv`.
+    pub scans: bool,
+}
+
+type Out = BufWriter<File>;
+
+/// Records each scan into the log forms, writing only changes to the long forms.
+pub struct LogRecorder {
+    events: EventWriter<Out>,
+    intervals: IntervalWriter<Out>,
+    scans: Option<ScanWriter<Out>>,
+    last: Vec<bool>,
+}
+
+impl LogRecorder {
+    /// Opens the log files of `plant` in `dir`.
+    pub fn create(dir: &Path, plant: &Plant, with_scans: bool) -> io::Result<LogRecorder> {
+        let format = TimeFormat::Numeric(plant.time_unit);
+        let open = |name: &str| -> io::Result<Out> {
+            Ok(BufWriter::with_capacity(1 << 16, File::create(dir.join(name))?))
+        };
+        Ok(LogRecorder {
+            events: EventWriter::new(open("events.csv")?, &plant.signals, format)?,
+            intervals: IntervalWriter::new(open("intervals.csv")?, &plant.signals, format)?,
+            scans: if with_scans {
+                Some(ScanWriter::new(open("scans.csv")?, &plant.signals, format)?)
+            } else {
+                None
+            },
+            last: Vec::new(),
+        })
+    }
+
+    /// Flushes and closes every file.
+    pub fn finish(self) -> io::Result<()> {
+        self.events.finish()?.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        self.intervals.finish()?.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        if let Some(scans) = self.scans {
+            scans.finish()?.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        }
+        Ok(())
+    }
+}
+
+impl ScanSink for LogRecorder {
+    fn scan(&mut self, t: Time, values: &[bool]) -> io::Result<()> {
+        if let Some(scans) = &mut self.scans {
+            scans.write(t, values)?;
+        }
+        if self.last.is_empty() {
+            self.events.write_initial(t, values)?;
+            self.intervals.write_initial(t, values)?;
+        } else {
+            for (i, (old, &new)) in self.last.iter_mut().zip(values).enumerate() {
+                if *old != new {
+                    *old = new;
+                    let e = Event { t, signal: SignalId(i as u32), value: new };
+                    self.events.write(&e)?;
+                    self.intervals.write(&e)?;
+                }
+            }
+            return Ok(());
+        }
+        self.last = values.to_vec();
+        Ok(())
+    }
+}
+
+/// Runs a simulation and writes all its files into `files.dir`.
+pub fn write_run<P: Physics, C: Controller>(
+    files: &RunFiles,
+    physics: &mut P,
+    controller: &mut C,
+    config: &SimConfig,
+    progress: impl FnMut(Time),
+) -> io::Result<SimReport> {
+    fs::create_dir_all(&files.dir)?;
+    let staging = files.dir.join(format!(".gardefou-staging-{}", std::process::id()));
+    let result = (|| {
+        fs::create_dir_all(&staging)?;
+        let plant = physics.plant().clone();
+        let mut recorder = LogRecorder::create(&staging, &plant, files.scans)?;
+        let report = run(physics, controller, config, &mut recorder, progress)?;
+        recorder.finish()?;
+
+        let unit = plant.time_unit;
+        write_json(&staging.join("truth.json"), &truth_json(&config.faults, unit))?;
+        let damage: Vec<serde_json::Value> = report
+            .damage
+            .iter()
+            .map(|d| serde_json::json!({ "t": time_value(d.t, unit), "cause": d.cause, "detail": d.detail }))
+            .collect();
+        let counters: serde_json::Map<String, serde_json::Value> =
+            report.counters.iter().map(|(k, v)| (k.clone(), (*v).into())).collect();
+        let summary = serde_json::json!({
+            "plant": plant.name,
+            "seed": config.seed,
+            "duration": time_value(config.duration, unit),
+            "scan_period": time_value(config.scan_period, unit),
+            "time_unit": unit.name(),
+            "scans": report.scans,
+            "damage": damage,
+            "counters": counters,
+        });
+        write_json(&staging.join("damage.json"), &summary)?;
+        fs::write(staging.join("plant.toml"), plant_file(&plant, config.scan_period))?;
+
+        let mut names = vec!["events.csv", "intervals.csv", "truth.json", "damage.json", "plant.toml"];
+        if files.scans {
+            names.push("scans.csv");
+        }
+        for name in names {
+            fs::rename(staging.join(name), files.dir.join(name))?;
+        }
+        Ok(report)
+    })();
+    // Best effort: the staging directory is empty on success.
+    let _ = fs::remove_dir_all(&staging);
+    result
+}
+
+fn write_json(path: &Path, value: &serde_json::Value) -> io::Result<()> {
+    let mut f = BufWriter::new(File::create(path)?);
+    serde_json::to_writer_pretty(&mut f, value).map_err(io::Error::other)?;
+    f.write_all(b"\n")?;
+    f.into_inner().map_err(|e| e.into_error())?.sync_all()
+}
+
+/// The shipped plant file of `plant`, with the run's scan period.
+fn plant_file(plant: &Plant, scan_period: Time) -> String {
+    let source = match plant.name.as_str() {
+        "cylinders" => crate::cylinders::PLANT_TOML,
+        _ => crate::sorting::PLANT_TOML,
+    };
+    let ms = diagnoser::TimeUnit::Ms.format(scan_period);
+    source
+        .lines()
+        .map(|l| if l.starts_with("scan_period_ms") { format!("scan_period_ms = {ms}") } else { l.to_string() })
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n"
+}

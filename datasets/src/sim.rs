@@ -1,0 +1,167 @@
+//! The scan loop shared by every simulated plant.
+
+use diagnoser::{FaultTemplate, Plant, Time};
+use rand_chacha::ChaCha8Rng;
+use rand::SeedableRng;
+use serde::Serialize;
+
+use crate::inject::{Injection, SensorInjector};
+
+/// The PLC program: called once per scan.
+///
+/// `io` holds one value per signal of the plant, indexed by
+/// [`diagnoser::SignalId::index`]: sensors as read in this scan, actuators as
+/// ordered in the previous scan. The controller writes its new orders into the
+/// actuator entries and must leave the sensor entries alone. The constraint-based
+/// safety filter plugs in through this same trait.
+pub trait Controller {
+    /// Computes the orders of the scan starting at `t`.
+    fn scan(&mut self, t: Time, io: &mut [bool]);
+}
+
+/// The physical model of a plant.
+pub trait Physics {
+    /// The plant file describing this plant's signals, parts and faults.
+    fn plant(&self) -> &Plant;
+
+    /// Advances the plant to time `t`, with the actuators physically at `actuators`
+    /// (indexed like the plant's signals; sensor entries are meaningless) since the
+    /// previous call. Physical harm is appended to `damage`.
+    fn advance(&mut self, t: Time, actuators: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>);
+
+    /// Writes the true value of every sensor into its entry of `io`.
+    fn read_sensors(&self, io: &mut [bool]);
+
+    /// Starts an element fault (`blocked_at`, `blocked_between`) now. Errors name
+    /// what this plant cannot simulate.
+    fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String>;
+
+    /// Throughput counters for the report (e.g. boxes delivered on each side).
+    fn counters(&self) -> Vec<(String, u64)>;
+}
+
+/// Receives what the PLC saw and ordered in each scan.
+pub trait ScanSink {
+    /// Records the scan starting at `t`; `values` is indexed like the plant's signals.
+    fn scan(&mut self, t: Time, values: &[bool]) -> std::io::Result<()>;
+}
+
+/// Physical harm observed by the simulator.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Damage {
+    /// When it happened.
+    pub t: Time,
+    /// Machine-readable cause, e.g. `rollers_in_transit`.
+    pub cause: &'static str,
+    /// One sentence for people.
+    pub detail: String,
+}
+
+/// Settings of one simulation run.
+#[derive(Debug, Clone)]
+pub struct SimConfig {
+    /// Simulated time; scans run at `0, scan, 2·scan, …` up to and including it.
+    pub duration: Time,
+    /// PLC scan period.
+    pub scan_period: Time,
+    /// Seed of every random draw (box arrivals, timing jitter).
+    pub seed: u64,
+    /// Faults to inject.
+    pub faults: Vec<Injection>,
+}
+
+/// What a run produced besides its log.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct SimReport {
+    /// Physical harm, in time order.
+    pub damage: Vec<Damage>,
+    /// Throughput counters.
+    pub counters: Vec<(String, u64)>,
+    /// Number of scans run.
+    pub scans: u64,
+}
+
+/// Runs the scan loop: physics, sensor faults, controller, actuator faults, sink.
+pub fn run<P: Physics, C: Controller, S: ScanSink>(
+    physics: &mut P,
+    controller: &mut C,
+    config: &SimConfig,
+    sink: &mut S,
+    mut progress: impl FnMut(Time),
+) -> std::io::Result<SimReport> {
+    let signals = physics.plant().signals.clone();
+    let n = signals.len();
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let mut injector = SensorInjector::new(&signals, &config.faults);
+    let mut pending_elements: Vec<&Injection> = config
+        .faults
+        .iter()
+        .filter(|f| f.template.signal().is_none())
+        .collect();
+    pending_elements.sort_by_key(|f| f.onset);
+    pending_elements.reverse();
+
+    let mut io = vec![false; n];
+    let mut physical = vec![false; n];
+    let mut report = SimReport::default();
+    let scan = config.scan_period.max(1);
+    let mut t: Time = 0;
+    while t <= config.duration {
+        while pending_elements.last().is_some_and(|f| f.onset <= t) {
+            if let Some(f) = pending_elements.pop() {
+                // Checked by `Injection::resolve`; a refusal here is a simulator bug.
+                physics
+                    .inject_element_fault(&f.template)
+                    .map_err(std::io::Error::other)?;
+            }
+        }
+        physics.advance(t, &physical, &mut rng, &mut report.damage);
+        physics.read_sensors(&mut io);
+        injector.apply_sensors(t, &mut io);
+        controller.scan(t, &mut io);
+        physical.copy_from_slice(&io);
+        injector.apply_actuators(t, &mut physical);
+        sink.scan(t, &io)?;
+        report.scans += 1;
+        if report.scans % 65_536 == 0 {
+            progress(t);
+        }
+        t += scan;
+    }
+    report.counters = physics.counters();
+    Ok(report)
+}
+
+/// A sink that keeps every scan's changes in memory, for tests and small runs.
+#[derive(Debug, Default, Clone)]
+pub struct MemorySink {
+    /// Values of the first scan.
+    pub initial: Vec<bool>,
+    /// Time of the first scan.
+    pub start: Time,
+    /// Every change after the first scan, in order.
+    pub events: Vec<diagnoser::Event>,
+    last: Vec<bool>,
+}
+
+impl ScanSink for MemorySink {
+    fn scan(&mut self, t: Time, values: &[bool]) -> std::io::Result<()> {
+        if self.last.is_empty() {
+            self.initial = values.to_vec();
+            self.start = t;
+        } else {
+            for (i, (&old, &new)) in self.last.iter().zip(values).enumerate() {
+                if old != new {
+                    self.events.push(diagnoser::Event {
+                        t,
+                        signal: diagnoser::SignalId(i as u32),
+                        value: new,
+                    });
+                }
+            }
+        }
+        self.last.clear();
+        self.last.extend_from_slice(values);
+        Ok(())
+    }
+}

@@ -1,0 +1,84 @@
+//! Errors that point at a place in a file: the one-line message users see.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A place in an input file. Lines and columns count from 1; a column of 0 means
+/// the whole line, a line of 0 the whole file.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Location {
+    /// The file.
+    pub file: PathBuf,
+    /// Line, from 1 (0: unknown).
+    pub line: usize,
+    /// Column, from 1 (0: unknown).
+    pub column: usize,
+    /// The field (CSV column name, TOML key) concerned, if any.
+    pub field: Option<String>,
+}
+
+impl Location {
+    /// A location at a line and column of `file`.
+    pub fn new(file: &Path, line: usize, column: usize) -> Self {
+        Location {
+            file: file.to_path_buf(),
+            line,
+            column,
+            field: None,
+        }
+    }
+
+    /// The same location, naming a field.
+    pub fn with_field(mut self, field: impl Into<String>) -> Self {
+        self.field = Some(field.into());
+        self
+    }
+}
+
+impl fmt::Display for Location {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if self.line > 0 {
+            write!(f, ":{}", self.line)?;
+            if self.column > 0 {
+                write!(f, ":{}", self.column)?;
+            }
+        }
+        if let Some(field) = &self.field {
+            write!(f, ": field '{field}'")?;
+        }
+        Ok(())
+    }
+}
+
+/// An error at a [`Location`]: `file:line:column: field 'x': message`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{location}: {message}")]
+pub struct Located {
+    /// Where.
+    pub location: Location,
+    /// What, in one line.
+    pub message: String,
+}
+
+impl Located {
+    /// An error at `location`.
+    pub fn new(location: Location, message: impl Into<String>) -> Self {
+        Located {
+            location,
+            message: message.into(),
+        }
+    }
+}
+
+/// Line and column (from 1) of a byte offset in `text`.
+pub fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    // Bytes, not chars: the offset may fall inside a multi-byte character.
+    let before = &text.as_bytes()[..offset.min(text.len())];
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let column = match before.iter().rposition(|&b| b == b'\n') {
+        Some(nl) => before.len() - nl,
+        None => before.len() + 1,
+    };
+    (line, column)
+}

@@ -1,0 +1,24 @@
+//! Core types of gardefou: time, signals, events, plant files, fault templates and
+//! the log forms (events, intervals, scans).
+//!
+//! Every other crate of the workspace depends on this one; it depends on none of
+//! them. It is kept free of heavy dependencies (no polars, no tokio) so that it
+//! builds and tests fast.
+//!
+//! It is not for: ingesting logs at scale (that is `learning`), evaluating or
+//! rewriting the safety filter (`filter-coupling`), or simulating plants
+//! (`datasets`).
+
+pub mod error;
+pub mod expr;
+pub mod fault;
+pub mod log;
+pub mod plant;
+pub mod signal;
+pub mod time;
+
+pub use error::{Located, Location};
+pub use fault::FaultTemplate;
+pub use plant::Plant;
+pub use signal::{Event, Signal, SignalId, SignalKind, SignalTable};
+pub use time::{MS, SECOND, Time, TimeFormat, TimeUnit};

@@ -1,0 +1,302 @@
+//! The events form (long): `t,signal,value`, one row per change of one signal.
+//!
+//! This is the form the simulator writes and the diagnoser replays: it is as long as
+//! the number of changes, not of scans, and rows can be streamed as the plant runs.
+//! Rows with equal `t` belong to one PLC scan. The log opens with one row per signal
+//! at its first timestamp, giving the initial values; `value` is `0`, `1`, `true`
+//! or `false` (any case). Optional columns `site`, `seq` and `quality` may appear
+//! anywhere in the header; their content is ignored.
+//!
+//! ```text
+//! t,signal,value
+//! 0,C4,1
+//! 0,C5,0
+//! 0,A4,0
+//! 100,A4,1
+//! 110,C4,0
+//! ```
+
+use std::io::{self, BufRead, BufWriter, Write};
+use std::path::Path;
+
+use super::csv::{self, CsvReader, State, TimeParser, TimeText};
+use super::{EventLog, TimeFormatChoice};
+use crate::error::{Located, Location};
+use crate::signal::{Event, SignalTable};
+use crate::time::{Time, TimeFormat, TimeUnit};
+
+/// The header the writer writes.
+const HEADER: &str = "t,signal,value";
+/// Required columns, in the order of [`EventReader::columns`].
+const REQUIRED: [&str; 3] = ["t", "signal", "value"];
+/// Accepted and ignored columns.
+const OPTIONAL: [&str; 3] = ["site", "seq", "quality"];
+/// What a header must contain, for messages.
+const EXPECTED: &str = "t,signal,value and optionally site, seq, quality";
+
+/// Writes an events log: the header, the initial values, then one row per event.
+///
+/// Output is buffered; call [`EventWriter::finish`] to flush it and see errors.
+pub struct EventWriter<W: Write> {
+    out: BufWriter<W>,
+    names: Vec<String>,
+    time: TimeText,
+}
+
+impl<W: Write> EventWriter<W> {
+    /// Writes the header `t,signal,value` to `w`; timestamps will be written in
+    /// `format`. Fails if a signal name cannot be written as a plain CSV field.
+    pub fn new(w: W, signals: &SignalTable, format: TimeFormat) -> io::Result<Self> {
+        let names = csv::plain_names(signals)?;
+        let mut out = BufWriter::with_capacity(csv::WRITE_BUFFER, w);
+        out.write_all(HEADER.as_bytes())?;
+        out.write_all(b"\n")?;
+        Ok(EventWriter {
+            out,
+            names,
+            time: TimeText::new(format),
+        })
+    }
+
+    /// Writes the opening rows: one per signal, in table order, all at `t`.
+    /// `values` is indexed by [`SignalId::index`](crate::SignalId::index).
+    pub fn write_initial(&mut self, t: Time, values: &[bool]) -> io::Result<()> {
+        if values.len() != self.names.len() {
+            return Err(csv::invalid_input(format!(
+                "{} initial values for {} signals",
+                values.len(),
+                self.names.len()
+            )));
+        }
+        for (i, &value) in values.iter().enumerate() {
+            self.row(t, i, value)?;
+        }
+        Ok(())
+    }
+
+    /// Writes one change. The writer does not check that the value changed or
+    /// that time does not go backwards; readers do.
+    pub fn write(&mut self, event: &Event) -> io::Result<()> {
+        let i = event.signal.index();
+        if i >= self.names.len() {
+            return Err(csv::invalid_input(format!(
+                "no signal with id {}",
+                event.signal.0
+            )));
+        }
+        self.row(event.t, i, event.value)
+    }
+
+    fn row(&mut self, t: Time, i: usize, value: bool) -> io::Result<()> {
+        let name = self.names.get(i).map_or("", String::as_str);
+        self.out.write_all(self.time.get(t).as_bytes())?;
+        self.out.write_all(b",")?;
+        self.out.write_all(name.as_bytes())?;
+        self.out.write_all(b",")?;
+        self.out.write_all(csv::bit(value))?;
+        self.out.write_all(b"\n")
+    }
+
+    /// Flushes the output and returns the inner writer.
+    pub fn finish(self) -> io::Result<W> {
+        csv::into_inner(self.out)
+    }
+}
+
+/// Reads an events log row by row: an iterator of the rows as [`Event`]s.
+///
+/// It yields every row, opening rows and repeated values included (see
+/// [`read_events`] for the checked [`EventLog`]). It checks the header, the number
+/// of fields, times (which must not go backwards), values and signal names, and
+/// stops after the first error. Memory does not grow with the log.
+pub struct EventReader<'a, R> {
+    csv: CsvReader<R>,
+    signals: &'a SignalTable,
+    /// Positions of `t`, `signal` and `value`.
+    columns: [usize; 3],
+    width: usize,
+    time: TimeParser,
+    state: State,
+    previous: Option<(Time, usize)>,
+}
+
+impl<'a, R: BufRead> EventReader<'a, R> {
+    /// Reads and checks the header, then the first data row (to detect the time
+    /// representation if asked to). `path` is only used in error messages.
+    pub fn new(
+        reader: R,
+        path: &Path,
+        signals: &'a SignalTable,
+        time: TimeFormatChoice,
+    ) -> Result<Self, Located> {
+        let mut csv = CsvReader::new(reader, path);
+        csv.read_header(HEADER)?;
+        let positions = csv.map_columns(&REQUIRED, &OPTIONAL, EXPECTED)?;
+        let columns = [positions[0], positions[1], positions[2]];
+        let width = csv.len();
+        let mut time = TimeParser::new(time);
+        let state = if csv.next_record()? {
+            time.detect(csv.field(columns[0]));
+            State::Pending
+        } else {
+            State::Done
+        };
+        Ok(EventReader {
+            csv,
+            signals,
+            columns,
+            width,
+            time,
+            state,
+            previous: None,
+        })
+    }
+
+    /// The time representation: given, or detected from the first data row
+    /// (numbers in the given unit if there is none).
+    pub fn format(&self) -> TimeFormat {
+        self.time.format()
+    }
+
+    /// Line (from 1) of the last row read.
+    pub fn line(&self) -> usize {
+        self.csv.line_no()
+    }
+
+    fn parse_row(&mut self) -> Result<Event, Located> {
+        let csv = &self.csv;
+        let [t_col, signal_col, value_col] = self.columns;
+        csv.check_width(self.width)?;
+        let t = self.time.parse(csv, t_col, "t")?;
+        if let Some((previous, line)) = self.previous {
+            if t < previous {
+                let message = format!(
+                    "time goes backwards: {} is before {} on line {line}",
+                    csv.field(t_col),
+                    self.time.format().format(previous)
+                );
+                return Err(csv.field_error(t_col, "t", message));
+            }
+        }
+        let signal = csv.signal(signal_col, "signal", self.signals)?;
+        let value = csv.value(value_col, "value")?;
+        self.previous = Some((t, csv.line_no()));
+        Ok(Event { t, signal, value })
+    }
+
+    /// The error for the last row read, `event`, giving its signal another value
+    /// than the row on line `earlier` at the same time.
+    fn conflict(&self, event: Event, earlier: usize) -> Located {
+        let message = format!(
+            "conflicting values for signal '{}' at time {}: line {earlier} gives the other value",
+            self.signals.name(event.signal),
+            self.csv.field(self.columns[0])
+        );
+        self.csv.field_error(self.columns[2], "value", message)
+    }
+}
+
+impl<R: BufRead> Iterator for EventReader<'_, R> {
+    type Item = Result<Event, Located>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if let Err(e) = self.state.advance(&mut self.csv)? {
+            return Some(Err(e));
+        }
+        let row = self.parse_row();
+        if row.is_err() {
+            self.state = State::Done;
+        }
+        Some(row)
+    }
+}
+
+/// Reads an events log file into an [`EventLog`], detecting the time
+/// representation (numbers in `unit`, or RFC 3339 text).
+pub fn read_events(
+    path: &Path,
+    signals: &SignalTable,
+    unit: TimeUnit,
+) -> Result<EventLog, Located> {
+    read_events_from(
+        csv::open(path)?,
+        path,
+        signals,
+        TimeFormatChoice::Detect(unit),
+    )
+}
+
+/// Reads an events log from `reader` into an [`EventLog`]; `path` is only used in
+/// error messages.
+///
+/// The opening rows (all rows at the first timestamp) must give every signal its
+/// initial value. Later rows that repeat a signal's value are dropped; two rows
+/// giving one signal different values at one time are an error.
+pub fn read_events_from<R: BufRead>(
+    reader: R,
+    path: &Path,
+    signals: &SignalTable,
+    time: TimeFormatChoice,
+) -> Result<EventLog, Located> {
+    let mut rows = EventReader::new(reader, path, signals, time)?;
+    let n = signals.len();
+    let first_line = rows.line();
+    let Some(first) = rows.next().transpose()? else {
+        return Err(csv::no_data(path));
+    };
+    let start = first.t;
+
+    // Opening rows. `last` holds the time and line of each signal's last row.
+    let mut initial: Vec<Option<bool>> = vec![None; n];
+    let mut last: Vec<(Time, usize)> = vec![(start, first_line); n];
+    let mut next = Some(first);
+    while let Some(event) = next.take_if(|e| e.t == start) {
+        let i = event.signal.index();
+        if initial[i].is_some_and(|value| value != event.value) {
+            return Err(rows.conflict(event, last[i].1));
+        }
+        initial[i] = Some(event.value);
+        last[i] = (event.t, rows.line());
+        next = rows.next().transpose()?;
+    }
+    let missing: Vec<&str> = signals
+        .iter()
+        .filter(|(id, _)| initial[id.index()].is_none())
+        .map(|(_, s)| s.name.as_str())
+        .collect();
+    if !missing.is_empty() {
+        let s = if missing.len() > 1 { "s" } else { "" };
+        let message = format!(
+            "no initial value for signal{s} {}: the log must open with one row per signal at its first time {}",
+            csv::quote_list(missing),
+            rows.format().format(start)
+        );
+        return Err(Located::new(Location::new(path, first_line, 0), message));
+    }
+    let initial: Vec<bool> = initial.into_iter().map(|v| v.unwrap_or(false)).collect();
+
+    // Changes.
+    let mut current = initial.clone();
+    let mut events = Vec::new();
+    while let Some(event) = next.take().map(Ok).or_else(|| rows.next()) {
+        let event = event?;
+        let i = event.signal.index();
+        if event.value != current[i] {
+            if last[i].0 == event.t {
+                return Err(rows.conflict(event, last[i].1));
+            }
+            current[i] = event.value;
+            events.push(event);
+        }
+        last[i] = (event.t, rows.line());
+    }
+    for scan in events.chunk_by_mut(|a, b| a.t == b.t) {
+        scan.sort_unstable_by_key(|e| e.signal);
+    }
+    Ok(EventLog {
+        format: rows.format(),
+        start,
+        initial,
+        events,
+    })
+}

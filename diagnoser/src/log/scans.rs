@@ -1,0 +1,289 @@
+//! The scans form (wide): `t,<sig1>,<sig2>,…`, one row per PLC scan or sample.
+//!
+//! This is what PLC traces, historians and spreadsheets usually export: the value
+//! of every signal at every scan. Edges are extracted between consecutive rows: a
+//! change between two rows is an event at the later row's time, so the sample
+//! period bounds timing precision. The header holds `t` and every signal of the
+//! plant once, in any order; times strictly increase.
+//!
+//! ```text
+//! t,C4,C5,A4
+//! 0,1,0,0
+//! 10,1,0,1
+//! 20,0,0,1
+//! ```
+
+use std::io::{self, BufRead, BufWriter, Write};
+use std::path::Path;
+
+use super::csv::{self, CsvReader, State, TimeParser, TimeText};
+use super::{EventLog, TimeFormatChoice};
+use crate::error::Located;
+use crate::signal::{Event, SignalId, SignalTable};
+use crate::time::{Time, TimeFormat, TimeUnit};
+
+/// Writes a scans log: the header `t` plus every signal in table order, then one
+/// row per scan.
+///
+/// Output is buffered; call [`ScanWriter::finish`] to flush it and see errors.
+pub struct ScanWriter<W: Write> {
+    out: BufWriter<W>,
+    signals: usize,
+    time: TimeText,
+    row: Vec<u8>,
+}
+
+impl<W: Write> ScanWriter<W> {
+    /// Writes the header `t,<sig1>,<sig2>,…` (signals in table order) to `w`;
+    /// timestamps will be written in `format`. Fails if a signal name cannot be
+    /// written as a plain CSV field.
+    pub fn new(w: W, signals: &SignalTable, format: TimeFormat) -> io::Result<Self> {
+        let names = csv::plain_names(signals)?;
+        let mut out = BufWriter::with_capacity(csv::WRITE_BUFFER, w);
+        out.write_all(b"t")?;
+        for name in &names {
+            out.write_all(b",")?;
+            out.write_all(name.as_bytes())?;
+        }
+        out.write_all(b"\n")?;
+        Ok(ScanWriter {
+            out,
+            signals: names.len(),
+            time: TimeText::new(format),
+            row: Vec::new(),
+        })
+    }
+
+    /// Writes one scan at `t`; `values` is indexed by [`SignalId::index`](crate::SignalId::index). The
+    /// writer does not check that time increases; readers do.
+    pub fn write(&mut self, t: Time, values: &[bool]) -> io::Result<()> {
+        if values.len() != self.signals {
+            return Err(csv::invalid_input(format!(
+                "{} values for {} signals",
+                values.len(),
+                self.signals
+            )));
+        }
+        self.row.clear();
+        self.row.extend_from_slice(self.time.get(t).as_bytes());
+        for &value in values {
+            self.row
+                .extend_from_slice(if value { b",1" } else { b",0" });
+        }
+        self.row.push(b'\n');
+        self.out.write_all(&self.row)
+    }
+
+    /// Flushes the output and returns the inner writer.
+    pub fn finish(self) -> io::Result<W> {
+        csv::into_inner(self.out)
+    }
+}
+
+/// Reads a scans log one scan at a time, with [`ScanReader::next_scan`].
+///
+/// It checks the header (`t` and every signal, once each), the number of fields,
+/// times (which must strictly increase) and values, and stops after the first
+/// error. Memory grows with the number of signals, not of rows.
+pub struct ScanReader<'a, R> {
+    csv: CsvReader<R>,
+    signals: &'a SignalTable,
+    t_column: usize,
+    /// The signal of each column (`None` for `t`).
+    columns: Vec<Option<SignalId>>,
+    time: TimeParser,
+    state: State,
+    previous: Option<(Time, usize)>,
+    values: Vec<bool>,
+}
+
+impl<'a, R: BufRead> ScanReader<'a, R> {
+    /// Reads and checks the header, then the first data row (to detect the time
+    /// representation if asked to). `path` is only used in error messages.
+    pub fn new(
+        reader: R,
+        path: &Path,
+        signals: &'a SignalTable,
+        time: TimeFormatChoice,
+    ) -> Result<Self, Located> {
+        let mut csv = CsvReader::new(reader, path);
+        csv.read_header("t,<signal>,<signal>,…")?;
+        let mut t_column = None;
+        let mut columns = Vec::with_capacity(csv.len());
+        let mut seen = vec![false; signals.len()];
+        for i in 0..csv.len() {
+            let name = csv.field(i);
+            // The first `t` is time; another is a signal named `t`, if any.
+            if name == "t" && t_column.is_none() {
+                t_column = Some(i);
+                columns.push(None);
+                continue;
+            }
+            let Some(id) = signals.id(name) else {
+                let message = if name == "t" {
+                    "duplicate column 't'".to_string()
+                } else if name.is_empty() {
+                    "empty column name (expected t or a signal name)".to_string()
+                } else {
+                    format!("unknown column '{name}': not a signal of the plant")
+                };
+                return Err(csv.error(csv.column(i), None, message));
+            };
+            if std::mem::replace(&mut seen[id.index()], true) {
+                return Err(csv.error(csv.column(i), None, format!("duplicate column '{name}'")));
+            }
+            columns.push(Some(id));
+        }
+        let Some(t_column) = t_column else {
+            return Err(csv.error(
+                0,
+                None,
+                "missing required column 't' (expected t,<signal>,<signal>,…)",
+            ));
+        };
+        let missing: Vec<&str> = signals
+            .iter()
+            .filter(|(id, _)| !seen[id.index()])
+            .map(|(_, s)| s.name.as_str())
+            .collect();
+        if !missing.is_empty() {
+            let s = if missing.len() > 1 { "s" } else { "" };
+            let message = format!(
+                "missing column{s} for signal{s} {}: a scans log needs every signal",
+                csv::quote_list(missing)
+            );
+            return Err(csv.error(0, None, message));
+        }
+        let mut time = TimeParser::new(time);
+        let state = if csv.next_record()? {
+            time.detect(csv.field(t_column));
+            State::Pending
+        } else {
+            State::Done
+        };
+        Ok(ScanReader {
+            csv,
+            signals,
+            t_column,
+            columns,
+            time,
+            state,
+            previous: None,
+            values: vec![false; signals.len()],
+        })
+    }
+
+    /// The time representation: given, or detected from the first data row
+    /// (numbers in the given unit if there is none).
+    pub fn format(&self) -> TimeFormat {
+        self.time.format()
+    }
+
+    /// Line (from 1) of the last row read.
+    pub fn line(&self) -> usize {
+        self.csv.line_no()
+    }
+
+    /// The next scan: its time and the value of every signal, indexed by
+    /// [`SignalId::index`](crate::SignalId::index). `None` at the end of the log or after an error.
+    pub fn next_scan(&mut self) -> Option<Result<(Time, &[bool]), Located>> {
+        if let Err(e) = self.state.advance(&mut self.csv)? {
+            return Some(Err(e));
+        }
+        match self.parse_row() {
+            Ok(t) => Some(Ok((t, &self.values))),
+            Err(e) => {
+                self.state = State::Done;
+                Some(Err(e))
+            }
+        }
+    }
+
+    fn parse_row(&mut self) -> Result<Time, Located> {
+        let csv = &self.csv;
+        let t_col = self.t_column;
+        csv.check_width(self.columns.len())?;
+        let t = self.time.parse(csv, t_col, "t")?;
+        if let Some((previous, line)) = self.previous {
+            if t <= previous {
+                let message = if t == previous {
+                    format!(
+                        "time does not increase: {} repeats the time of line {line}",
+                        csv.field(t_col)
+                    )
+                } else {
+                    format!(
+                        "time goes backwards: {} is before {} on line {line}",
+                        csv.field(t_col),
+                        self.time.format().format(previous)
+                    )
+                };
+                return Err(csv.field_error(t_col, "t", message));
+            }
+        }
+        for (i, column) in self.columns.iter().enumerate() {
+            if let Some(id) = *column {
+                self.values[id.index()] = csv.value(i, self.signals.name(id))?;
+            }
+        }
+        self.previous = Some((t, csv.line_no()));
+        Ok(t)
+    }
+}
+
+/// Reads a scans log file into the [`EventLog`] the events form would give,
+/// detecting the time representation (numbers in `unit`, or RFC 3339 text).
+pub fn read_scans_as_events(
+    path: &Path,
+    signals: &SignalTable,
+    unit: TimeUnit,
+) -> Result<EventLog, Located> {
+    read_scans_as_events_from(
+        csv::open(path)?,
+        path,
+        signals,
+        TimeFormatChoice::Detect(unit),
+    )
+}
+
+/// Reads a scans log from `reader` into the [`EventLog`] the events form would give;
+/// `path` is only used in error messages.
+///
+/// The first row gives the initial values; a value that differs from the previous
+/// row's is a change at the later row's time.
+pub fn read_scans_as_events_from<R: BufRead>(
+    reader: R,
+    path: &Path,
+    signals: &SignalTable,
+    time: TimeFormatChoice,
+) -> Result<EventLog, Located> {
+    let mut reader = ScanReader::new(reader, path, signals, time)?;
+    let (start, initial) = match reader.next_scan() {
+        None => return Err(csv::no_data(path)),
+        Some(scan) => {
+            let (t, values) = scan?;
+            (t, values.to_vec())
+        }
+    };
+    let mut current = initial.clone();
+    let mut events = Vec::new();
+    while let Some(scan) = reader.next_scan() {
+        let (t, values) = scan?;
+        for (i, (&value, old)) in values.iter().zip(current.iter_mut()).enumerate() {
+            if value != *old {
+                *old = value;
+                events.push(Event {
+                    t,
+                    signal: SignalId(i as u32),
+                    value,
+                });
+            }
+        }
+    }
+    Ok(EventLog {
+        format: reader.format(),
+        start,
+        initial,
+        events,
+    })
+}

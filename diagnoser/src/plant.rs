@@ -1,0 +1,841 @@
+//! The plant file, `plant.toml`: signals, parts, faults, partitions, observers and
+//! constraints (SPEC §3).
+//!
+//! Parsing checks every cross-reference (a part's sensors exist and are sensors, a
+//! fault's template fits its target, a constraint names known variables...) and
+//! reports the first problem as `file:line:column: field 'x': message`.
+
+use std::collections::{BTreeSet, HashMap, HashSet};
+use std::fmt;
+use std::ops::Range;
+use std::path::Path;
+
+use serde::Deserialize;
+use serde::de::{Deserializer, MapAccess, Visitor};
+use toml::Spanned;
+
+use crate::error::{Located, Location, line_column};
+use crate::expr::Expr;
+use crate::fault::{FaultTarget, FaultTemplate};
+use crate::signal::{Signal, SignalId, SignalKind, SignalTable};
+use crate::time::{MS, Time, TimeUnit};
+
+/// A parsed and checked plant file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plant {
+    /// Plant name (e.g. `sorting`).
+    pub name: String,
+    /// PLC scan period.
+    pub scan_period: Time,
+    /// Unit of numeric timestamps in this plant's logs.
+    pub time_unit: TimeUnit,
+    /// Declared signals, in file order.
+    pub signals: SignalTable,
+    /// Internal PLC variables (e.g. GRAFCET steps `X1`) that functional constraints read.
+    pub variables: Vec<String>,
+    /// Parts of the plant, each with its own local diagnoser.
+    pub parts: Vec<Part>,
+    /// Fault labels and their templates, in file order (or generated, see [`Plant::parse`]).
+    pub faults: Vec<FaultDef>,
+    /// Fault partitions; partition `X` has the flag `def_X`.
+    pub partitions: Vec<Partition>,
+    /// Observers: sequential functions of the inputs.
+    pub observers: Vec<Observer>,
+    /// Safety constraints (must evaluate to 0 in every scan).
+    pub constraints: Vec<Constraint>,
+    /// Functional constraints (seed 001).
+    pub functional: Vec<Constraint>,
+}
+
+/// A part of the plant (PoP): some actuators, the sensors that follow them and
+/// optionally the moving element they drive.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Part {
+    /// Part name (e.g. `turntable`).
+    pub name: String,
+    /// Its actuators.
+    pub actuators: Vec<SignalId>,
+    /// Its sensors.
+    pub sensors: Vec<SignalId>,
+    /// Its moving element, target of element faults (e.g. `P`).
+    pub element: Option<String>,
+}
+
+/// A fault label and what it means.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FaultDef {
+    /// The user's label (e.g. `F2`) or a generated one (e.g. `C4.stuck1`).
+    pub label: String,
+    /// The template it instantiates.
+    pub template: FaultTemplate,
+}
+
+/// A partition of faults, one per component; its flag is `def_<name>`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Partition {
+    /// Partition name (e.g. `C4`).
+    pub name: String,
+    /// Labels of its faults.
+    pub faults: Vec<String>,
+}
+
+impl Partition {
+    /// The flag raised when a fault of this partition is certain: `def_<name>`.
+    pub fn flag(&self) -> String {
+        format!("def_{}", self.name)
+    }
+}
+
+/// How an observer evolves.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ObserverRule {
+    /// Set to 1 when `set` holds, reset to 0 when `reset` holds (reset wins).
+    SetReset {
+        /// Setting condition.
+        set: Expr,
+        /// Resetting condition.
+        reset: Expr,
+    },
+    /// Complemented in each scan where the condition holds.
+    Toggle(Expr),
+}
+
+/// An observer: a memory reconstructing what sensors cannot see.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Observer {
+    /// Name (e.g. `P36`).
+    pub name: String,
+    /// How it evolves.
+    pub rule: ObserverRule,
+    /// Value before the first scan.
+    pub init: bool,
+}
+
+/// A named constraint (a monomial that must stay 0, or a functional requirement).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Constraint {
+    /// Name (e.g. `CSs5`).
+    pub name: String,
+    /// The expression.
+    pub expr: Expr,
+    /// For combined constraints: the output that keeps its value.
+    pub priority: Option<SignalId>,
+}
+
+/// An error in a plant file.
+pub type PlantError = Located;
+
+impl Plant {
+    /// Reads and checks a plant file.
+    pub fn from_path(path: &Path) -> Result<Plant, PlantError> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            Located::new(
+                Location::new(path, 0, 0),
+                format!("cannot read plant file: {e}"),
+            )
+        })?;
+        Plant::parse(&text, path)
+    }
+
+    /// Parses and checks plant-file text; `path` is only used in error messages.
+    ///
+    /// Without `[faults]`, every template applicable to each part is generated with
+    /// labels such as `C4.stuck1`, `A4.actuator_stuck0` or `P.blocked_at.C4`. Without
+    /// `[partitions]`, faults are grouped per sensor and per element; actuator faults
+    /// join their part's element, or a partition named after the actuator.
+    pub fn parse(text: &str, path: &Path) -> Result<Plant, PlantError> {
+        let raw: RawPlant = toml::from_str(text).map_err(|e| {
+            let (line, column) = e.span().map_or((0, 0), |s| line_column(text, s.start));
+            Located::new(
+                Location::new(path, line, column),
+                e.message().trim().to_string(),
+            )
+        })?;
+        Checker { text, path }.build(raw)
+    }
+
+    /// The part with this name.
+    pub fn part(&self, name: &str) -> Option<&Part> {
+        self.parts.iter().find(|p| p.name == name)
+    }
+
+    /// The fault with this label.
+    pub fn fault(&self, label: &str) -> Option<&FaultDef> {
+        self.faults.iter().find(|f| f.label == label)
+    }
+
+    /// The partition a fault belongs to.
+    pub fn partition_of(&self, label: &str) -> Option<&Partition> {
+        self.partitions
+            .iter()
+            .find(|p| p.faults.iter().any(|f| f == label))
+    }
+
+    /// Names of all moving elements declared by parts.
+    pub fn elements(&self) -> impl Iterator<Item = &str> {
+        self.parts.iter().filter_map(|p| p.element.as_deref())
+    }
+}
+
+impl fmt::Display for ObserverRule {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ObserverRule::SetReset { set, reset } => write!(f, "set on {set}, reset on {reset}"),
+            ObserverRule::Toggle(e) => write!(f, "toggle on {e}"),
+        }
+    }
+}
+
+// ----- raw file form -----
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPlant {
+    name: String,
+    #[serde(default)]
+    scan_period_ms: Option<Spanned<f64>>,
+    #[serde(default)]
+    time_unit: Option<Spanned<String>>,
+    #[serde(deserialize_with = "ordered")]
+    signals: Vec<(Spanned<String>, RawSignal)>,
+    #[serde(default)]
+    variables: Vec<Spanned<String>>,
+    #[serde(default)]
+    parts: Vec<RawPart>,
+    #[serde(default, deserialize_with = "ordered_opt")]
+    faults: Option<Vec<(Spanned<String>, Spanned<String>)>>,
+    #[serde(default, deserialize_with = "ordered_opt")]
+    partitions: Option<Vec<RawPartition>>,
+    #[serde(default, deserialize_with = "ordered")]
+    observers: Vec<(Spanned<String>, RawObserver)>,
+    #[serde(default)]
+    constraints: Vec<RawConstraint>,
+    #[serde(default)]
+    functional: Vec<RawConstraint>,
+}
+
+/// A partition name and its fault labels, as written.
+type RawPartition = (Spanned<String>, Vec<Spanned<String>>);
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSignal {
+    kind: SignalKind,
+    #[serde(default)]
+    description: String,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPart {
+    name: Spanned<String>,
+    #[serde(default)]
+    actuators: Vec<Spanned<String>>,
+    #[serde(default)]
+    sensors: Vec<Spanned<String>>,
+    #[serde(default)]
+    element: Option<Spanned<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawObserver {
+    #[serde(default)]
+    set: Option<Spanned<String>>,
+    #[serde(default)]
+    reset: Option<Spanned<String>>,
+    #[serde(default)]
+    toggle: Option<Spanned<String>>,
+    #[serde(default)]
+    init: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConstraint {
+    name: Spanned<String>,
+    expr: Spanned<String>,
+    #[serde(default)]
+    priority: Option<Spanned<String>>,
+}
+
+/// Deserializes a TOML table into its entries in file order.
+fn ordered<'de, D, K, V>(d: D) -> Result<Vec<(K, V)>, D::Error>
+where
+    D: Deserializer<'de>,
+    K: Deserialize<'de>,
+    V: Deserialize<'de>,
+{
+    struct Entries<K, V>(std::marker::PhantomData<(K, V)>);
+    impl<'de, K: Deserialize<'de>, V: Deserialize<'de>> Visitor<'de> for Entries<K, V> {
+        type Value = Vec<(K, V)>;
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("a table")
+        }
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+            let mut out = Vec::new();
+            while let Some(entry) = map.next_entry()? {
+                out.push(entry);
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_map(Entries(std::marker::PhantomData))
+}
+
+fn ordered_opt<'de, D, K, V>(d: D) -> Result<Option<Vec<(K, V)>>, D::Error>
+where
+    D: Deserializer<'de>,
+    K: Deserialize<'de>,
+    V: Deserialize<'de>,
+{
+    ordered(d).map(Some)
+}
+
+// ----- checking -----
+
+struct Checker<'a> {
+    text: &'a str,
+    path: &'a Path,
+}
+
+impl Checker<'_> {
+    fn at(&self, span: Range<usize>, field: &str, message: impl Into<String>) -> PlantError {
+        let (line, column) = line_column(self.text, span.start);
+        Located::new(
+            Location::new(self.path, line, column).with_field(field),
+            message,
+        )
+    }
+
+    fn build(&self, raw: RawPlant) -> Result<Plant, PlantError> {
+        let scan_period = match &raw.scan_period_ms {
+            None => 10 * MS,
+            Some(s) => {
+                let ms = *s.get_ref();
+                if !(ms.is_finite() && ms > 0.0 && ms <= 60_000.0) {
+                    return Err(self.at(
+                        s.span(),
+                        "scan_period_ms",
+                        "must be > 0 and at most 60000",
+                    ));
+                }
+                (ms * MS as f64).round() as Time
+            }
+        };
+        let time_unit = match &raw.time_unit {
+            None => TimeUnit::Ms,
+            Some(u) => u
+                .get_ref()
+                .parse()
+                .map_err(|e: String| self.at(u.span(), "time_unit", e))?,
+        };
+
+        let mut signals = SignalTable::new();
+        for (name, sig) in raw.signals {
+            check_name(name.get_ref()).map_err(|m| self.at(name.span(), "signals", m))?;
+            let signal = Signal {
+                name: name.get_ref().clone(),
+                kind: sig.kind,
+                description: sig.description,
+            };
+            if signals.push(signal).is_none() {
+                return Err(self.at(
+                    name.span(),
+                    "signals",
+                    format!("signal '{}' declared twice", name.get_ref()),
+                ));
+            }
+        }
+        if signals.is_empty() {
+            return Err(Located::new(
+                Location::new(self.path, 0, 0).with_field("signals"),
+                "no signals declared",
+            ));
+        }
+
+        let mut variables = Vec::new();
+        for v in raw.variables {
+            check_name(v.get_ref()).map_err(|m| self.at(v.span(), "variables", m))?;
+            if signals.id(v.get_ref()).is_some() || variables.contains(v.get_ref()) {
+                return Err(self.at(
+                    v.span(),
+                    "variables",
+                    format!("'{}' is already declared", v.get_ref()),
+                ));
+            }
+            variables.push(v.into_inner());
+        }
+
+        let mut parts: Vec<Part> = Vec::new();
+        let mut elements: HashMap<String, usize> = HashMap::new();
+        for p in raw.parts {
+            if parts.iter().any(|q| q.name == *p.name.get_ref()) {
+                return Err(self.at(
+                    p.name.span(),
+                    "parts.name",
+                    format!("part '{}' declared twice", p.name.get_ref()),
+                ));
+            }
+            let actuators = self.signal_list(
+                &signals,
+                &p.actuators,
+                SignalKind::Actuator,
+                "parts.actuators",
+            )?;
+            let sensors =
+                self.signal_list(&signals, &p.sensors, SignalKind::Sensor, "parts.sensors")?;
+            let element = match p.element {
+                None => None,
+                Some(e) => {
+                    check_name(e.get_ref()).map_err(|m| self.at(e.span(), "parts.element", m))?;
+                    if signals.id(e.get_ref()).is_some() {
+                        return Err(self.at(
+                            e.span(),
+                            "parts.element",
+                            format!("'{}' is a signal, not an element", e.get_ref()),
+                        ));
+                    }
+                    if elements.insert(e.get_ref().clone(), parts.len()).is_some() {
+                        return Err(self.at(
+                            e.span(),
+                            "parts.element",
+                            format!("element '{}' belongs to two parts", e.get_ref()),
+                        ));
+                    }
+                    Some(e.into_inner())
+                }
+            };
+            parts.push(Part {
+                name: p.name.into_inner(),
+                actuators,
+                sensors,
+                element,
+            });
+        }
+
+        let faults = match raw.faults {
+            Some(entries) => {
+                let mut out: Vec<FaultDef> = Vec::new();
+                for (label, template) in entries {
+                    let t: FaultTemplate = template
+                        .get_ref()
+                        .parse()
+                        .map_err(|m: String| self.at(template.span(), "faults", m))?;
+                    self.check_template(&t, &signals, &parts, &elements)
+                        .map_err(|m| self.at(template.span(), "faults", m))?;
+                    if out.iter().any(|f| f.label == *label.get_ref()) {
+                        return Err(self.at(
+                            label.span(),
+                            "faults",
+                            format!("fault '{}' declared twice", label.get_ref()),
+                        ));
+                    }
+                    out.push(FaultDef {
+                        label: label.into_inner(),
+                        template: t,
+                    });
+                }
+                out
+            }
+            None => default_faults(&parts, &signals),
+        };
+
+        let partitions = match raw.partitions {
+            Some(entries) => {
+                let mut out: Vec<Partition> = Vec::new();
+                let mut seen: HashSet<String> = HashSet::new();
+                for (name, labels) in entries {
+                    check_name(name.get_ref())
+                        .map_err(|m| self.at(name.span(), "partitions", m))?;
+                    let mut list = Vec::new();
+                    for l in labels {
+                        if !faults.iter().any(|f| f.label == *l.get_ref()) {
+                            return Err(self.at(
+                                l.span(),
+                                "partitions",
+                                format!("unknown fault '{}'", l.get_ref()),
+                            ));
+                        }
+                        if !seen.insert(l.get_ref().clone()) {
+                            return Err(self.at(
+                                l.span(),
+                                "partitions",
+                                format!("fault '{}' is in two partitions", l.get_ref()),
+                            ));
+                        }
+                        list.push(l.into_inner());
+                    }
+                    out.push(Partition {
+                        name: name.into_inner(),
+                        faults: list,
+                    });
+                }
+                out
+            }
+            None => default_partitions(&faults, &parts, &signals),
+        };
+
+        // Names an expression may read: signals, observers, variables and flags.
+        let mut known: HashSet<String> = signals.iter().map(|(_, s)| s.name.clone()).collect();
+        known.extend(variables.iter().cloned());
+        for p in &partitions {
+            known.insert(p.flag());
+            known.insert(format!("suspect_{}", p.name));
+        }
+        let mut observer_names = Vec::new();
+        for (name, _) in &raw.observers {
+            check_name(name.get_ref()).map_err(|m| self.at(name.span(), "observers", m))?;
+            if !known.insert(name.get_ref().clone()) {
+                return Err(self.at(
+                    name.span(),
+                    "observers",
+                    format!("'{}' is already declared", name.get_ref()),
+                ));
+            }
+            observer_names.push(name.get_ref().clone());
+        }
+
+        let mut observers = Vec::new();
+        for (name, o) in raw.observers {
+            let field = format!("observers.{}", name.get_ref());
+            let rule = match (o.set, o.reset, o.toggle) {
+                (Some(set), Some(reset), None) => ObserverRule::SetReset {
+                    set: self.expr(&set, &field, &known, &signals)?,
+                    reset: self.expr(&reset, &field, &known, &signals)?,
+                },
+                (None, None, Some(toggle)) => {
+                    ObserverRule::Toggle(self.expr(&toggle, &field, &known, &signals)?)
+                }
+                _ => {
+                    return Err(self.at(
+                        name.span(),
+                        &field,
+                        "an observer needs either `set` and `reset`, or `toggle`",
+                    ));
+                }
+            };
+            observers.push(Observer {
+                name: name.into_inner(),
+                rule,
+                init: o.init,
+            });
+        }
+
+        let constraints = self.constraints(raw.constraints, "constraints", &known, &signals)?;
+        let functional = self.constraints(raw.functional, "functional", &known, &signals)?;
+
+        Ok(Plant {
+            name: raw.name,
+            scan_period,
+            time_unit,
+            signals,
+            variables,
+            parts,
+            faults,
+            partitions,
+            observers,
+            constraints,
+            functional,
+        })
+    }
+
+    fn signal_list(
+        &self,
+        signals: &SignalTable,
+        names: &[Spanned<String>],
+        kind: SignalKind,
+        field: &str,
+    ) -> Result<Vec<SignalId>, PlantError> {
+        names
+            .iter()
+            .map(|n| {
+                let id = signals.id(n.get_ref()).ok_or_else(|| {
+                    self.at(n.span(), field, format!("unknown signal '{}'", n.get_ref()))
+                })?;
+                if signals.get(id).kind != kind {
+                    return Err(self.at(
+                        n.span(),
+                        field,
+                        format!("'{}' is not {}", n.get_ref(), kind.with_article()),
+                    ));
+                }
+                Ok(id)
+            })
+            .collect()
+    }
+
+    fn check_template(
+        &self,
+        t: &FaultTemplate,
+        signals: &SignalTable,
+        parts: &[Part],
+        elements: &HashMap<String, usize>,
+    ) -> Result<(), String> {
+        let want_kind = |name: &str, kind: SignalKind| -> Result<(), String> {
+            match signals.id(name) {
+                None => Err(format!("unknown signal '{name}' in {t}")),
+                Some(id) if signals.get(id).kind != kind => {
+                    Err(format!("'{name}' in {t} is not {}", kind.with_article()))
+                }
+                Some(_) => Ok(()),
+            }
+        };
+        match t.target() {
+            FaultTarget::Sensor => want_kind(t.arguments()[0], SignalKind::Sensor),
+            FaultTarget::Actuator => want_kind(t.arguments()[0], SignalKind::Actuator),
+            FaultTarget::Element => {
+                let args = t.arguments();
+                let part = elements.get(args[0]).map(|&i| &parts[i]).ok_or_else(|| {
+                    format!(
+                        "unknown element '{}' in {t} (declare it as a part's `element`)",
+                        args[0]
+                    )
+                })?;
+                for s in &args[1..] {
+                    want_kind(s, SignalKind::Sensor)?;
+                    if !part.sensors.iter().any(|&id| signals.name(id) == *s) {
+                        return Err(format!(
+                            "'{s}' in {t} is not a sensor of part '{}'",
+                            part.name
+                        ));
+                    }
+                }
+                if args.len() == 3 && args[1] == args[2] {
+                    return Err(format!("{t}: the two positions must differ"));
+                }
+                Ok(())
+            }
+        }
+    }
+
+    fn expr(
+        &self,
+        text: &Spanned<String>,
+        field: &str,
+        known: &HashSet<String>,
+        signals: &SignalTable,
+    ) -> Result<Expr, PlantError> {
+        // The value's span includes its opening quote.
+        let start = text.span().start + 1;
+        let e = Expr::parse(text.get_ref()).map_err(|err| {
+            self.at(
+                start + err.offset..start + err.offset,
+                field,
+                format!("bad expression: {}", err.message),
+            )
+        })?;
+        check_expr_names(&e, known, signals).map_err(|m| self.at(text.span(), field, m))?;
+        Ok(e)
+    }
+
+    fn constraints(
+        &self,
+        raw: Vec<RawConstraint>,
+        section: &str,
+        known: &HashSet<String>,
+        signals: &SignalTable,
+    ) -> Result<Vec<Constraint>, PlantError> {
+        let mut out: Vec<Constraint> = Vec::new();
+        for c in raw {
+            let field = format!("{section}.{}", c.name.get_ref());
+            if out.iter().any(|o| o.name == *c.name.get_ref()) {
+                return Err(self.at(
+                    c.name.span(),
+                    &field,
+                    format!("constraint '{}' declared twice", c.name.get_ref()),
+                ));
+            }
+            let expr = self.expr(&c.expr, &field, known, signals)?;
+            let priority = match c.priority {
+                None => None,
+                Some(p) => {
+                    let id = signals
+                        .id(p.get_ref())
+                        .filter(|&id| signals.get(id).kind == SignalKind::Actuator)
+                        .ok_or_else(|| {
+                            self.at(
+                                p.span(),
+                                &field,
+                                format!("priority '{}' is not an actuator", p.get_ref()),
+                            )
+                        })?;
+                    if !expr.names().contains(&p.get_ref().as_str()) {
+                        return Err(self.at(
+                            p.span(),
+                            &field,
+                            format!(
+                                "priority '{}' does not appear in the constraint",
+                                p.get_ref()
+                            ),
+                        ));
+                    }
+                    Some(id)
+                }
+            };
+            out.push(Constraint {
+                name: c.name.into_inner(),
+                expr,
+                priority,
+            });
+        }
+        Ok(out)
+    }
+}
+
+fn check_name(name: &str) -> Result<(), String> {
+    if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err(format!(
+            "'{name}' is not a valid name (letters, digits and _ only)"
+        ));
+    }
+    if name.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(format!("'{name}' is not a valid name (it is a number)"));
+    }
+    if matches!(name, "RE" | "FE" | "prev") {
+        return Err(format!("'{name}' is reserved"));
+    }
+    Ok(())
+}
+
+fn check_expr_names(
+    e: &Expr,
+    known: &HashSet<String>,
+    signals: &SignalTable,
+) -> Result<(), String> {
+    fn walk(e: &Expr, known: &HashSet<String>, signals: &SignalTable) -> Result<(), String> {
+        match e {
+            Expr::Const(_) => Ok(()),
+            Expr::Var(n) => {
+                if known.contains(n) {
+                    Ok(())
+                } else {
+                    Err(format!("unknown name '{n}'"))
+                }
+            }
+            Expr::Rise(n) | Expr::Fall(n) | Expr::Prev(n) => {
+                if known.contains(n) || signals.id(n).is_some() {
+                    Ok(())
+                } else {
+                    Err(format!("unknown name '{n}'"))
+                }
+            }
+            Expr::Not(x) => walk(x, known, signals),
+            Expr::And(xs) | Expr::Or(xs) => xs.iter().try_for_each(|x| walk(x, known, signals)),
+        }
+    }
+    walk(e, known, signals)
+}
+
+/// Every template applicable to each part, labelled `<target>.<template>`.
+fn default_faults(parts: &[Part], signals: &SignalTable) -> Vec<FaultDef> {
+    let mut out = Vec::new();
+    let mut seen = BTreeSet::new();
+    let mut push = |label: String, template: FaultTemplate, out: &mut Vec<FaultDef>| {
+        if seen.insert(label.clone()) {
+            out.push(FaultDef { label, template });
+        }
+    };
+    for part in parts {
+        for &s in &part.sensors {
+            let n = signals.name(s).to_string();
+            push(
+                format!("{n}.stuck0"),
+                FaultTemplate::Stuck0(n.clone()),
+                &mut out,
+            );
+            push(
+                format!("{n}.stuck1"),
+                FaultTemplate::Stuck1(n.clone()),
+                &mut out,
+            );
+            push(
+                format!("{n}.unexpected_rise"),
+                FaultTemplate::UnexpectedRise(n.clone()),
+                &mut out,
+            );
+            push(
+                format!("{n}.unexpected_fall"),
+                FaultTemplate::UnexpectedFall(n.clone()),
+                &mut out,
+            );
+        }
+        for &a in &part.actuators {
+            let n = signals.name(a).to_string();
+            push(
+                format!("{n}.actuator_stuck0"),
+                FaultTemplate::ActuatorStuck0(n.clone()),
+                &mut out,
+            );
+            push(
+                format!("{n}.actuator_stuck1"),
+                FaultTemplate::ActuatorStuck1(n.clone()),
+                &mut out,
+            );
+        }
+        if let Some(e) = &part.element {
+            for &s in &part.sensors {
+                let at = signals.name(s).to_string();
+                push(
+                    format!("{e}.blocked_at.{at}"),
+                    FaultTemplate::BlockedAt {
+                        element: e.clone(),
+                        at,
+                    },
+                    &mut out,
+                );
+            }
+            for &from in &part.sensors {
+                for &to in &part.sensors {
+                    if from != to {
+                        let (from, to) =
+                            (signals.name(from).to_string(), signals.name(to).to_string());
+                        push(
+                            format!("{e}.blocked_between.{from}.{to}"),
+                            FaultTemplate::BlockedBetween {
+                                element: e.clone(),
+                                from,
+                                to,
+                            },
+                            &mut out,
+                        );
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// One partition per faulty sensor and per element; actuator faults join their
+/// part's element, or a partition named after the actuator.
+fn default_partitions(
+    faults: &[FaultDef],
+    parts: &[Part],
+    signals: &SignalTable,
+) -> Vec<Partition> {
+    let mut out: Vec<Partition> = Vec::new();
+    for f in faults {
+        let name = match (&f.template, f.template.target()) {
+            (FaultTemplate::BlockedAt { element, .. }, _)
+            | (FaultTemplate::BlockedBetween { element, .. }, _) => element.clone(),
+            (t, FaultTarget::Actuator) => {
+                let a = t.arguments()[0];
+                parts
+                    .iter()
+                    .find(|p| p.actuators.iter().any(|&id| signals.name(id) == a))
+                    .and_then(|p| p.element.clone())
+                    .unwrap_or_else(|| a.to_string())
+            }
+            (t, _) => t.arguments()[0].to_string(),
+        };
+        match out.iter_mut().find(|p| p.name == name) {
+            Some(p) => p.faults.push(f.label.clone()),
+            None => out.push(Partition {
+                name,
+                faults: vec![f.label.clone()],
+            }),
+        }
+    }
+    out
+}

@@ -1,0 +1,100 @@
+//! Data-driven tests of `plant.toml` parsing: every `tests/fixtures/plants/*.toml`
+//! whose name starts with `good` must parse; every other must fail with exactly the
+//! one-line message of the `.err` file beside it.
+//!
+//! Run with `UPDATE_EXPECT=1` to (re)write the `.err` files, then review the diff.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use diagnoser::fault::FaultTemplate;
+use diagnoser::plant::ObserverRule;
+use diagnoser::{Plant, SignalKind, TimeUnit};
+
+fn fixtures() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants");
+    let mut files: Vec<PathBuf> = fs::read_dir(&dir)
+        .expect("fixture directory")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    files
+}
+
+fn parse(path: &Path) -> Result<Plant, diagnoser::Located> {
+    let text = fs::read_to_string(path).expect("fixture reads");
+    let name = path.file_name().expect("file name");
+    Plant::parse(&text, &Path::new("tests/fixtures/plants").join(name))
+}
+
+#[test]
+fn bad_plant_files_fail_with_the_expected_message() {
+    let update = std::env::var_os("UPDATE_EXPECT").is_some();
+    let mut checked = 0;
+    for path in fixtures() {
+        let stem = path.file_stem().and_then(|s| s.to_str()).expect("utf-8 name");
+        if stem.starts_with("good") {
+            continue;
+        }
+        let err = parse(&path).expect_err(stem).to_string();
+        assert_eq!(err.lines().count(), 1, "{stem}: multi-line error: {err}");
+        let expected_path = path.with_extension("err");
+        if update {
+            fs::write(&expected_path, format!("{err}\n")).expect("writes .err");
+        }
+        let expected = fs::read_to_string(&expected_path).unwrap_or_else(|_| panic!("{stem}.err missing"));
+        assert_eq!(err, expected.trim_end(), "{stem}");
+        checked += 1;
+    }
+    assert!(checked >= 15, "only {checked} bad fixtures");
+}
+
+#[test]
+fn the_spec_form_is_accepted_as_written() {
+    let plant = parse(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_spec_example.toml"))
+        .expect("SPEC §3 form parses");
+    assert_eq!(plant.name, "sorting");
+    assert_eq!(plant.scan_period, 10 * diagnoser::MS);
+    assert_eq!(plant.time_unit, TimeUnit::Ms);
+    let turntable = plant.part("turntable").expect("part");
+    assert_eq!(turntable.element.as_deref(), Some("P"));
+    assert_eq!(turntable.sensors.len(), 2);
+    assert_eq!(
+        plant.fault("F11").map(|f| &f.template),
+        Some(&FaultTemplate::BlockedBetween { element: "P".into(), from: "C4".into(), to: "C5".into() })
+    );
+    assert_eq!(plant.partition_of("F5").map(|p| p.flag()), Some("def_P".to_string()));
+    assert!(matches!(plant.observers[0].rule, ObserverRule::SetReset { .. }));
+    let csc1 = &plant.constraints[1];
+    assert_eq!(csc1.priority.map(|id| plant.signals.name(id)), Some("A1"));
+    assert_eq!(csc1.expr.to_string(), "C0 & A0 & !A1");
+    assert_eq!(plant.functional[0].name, "CFs1");
+}
+
+#[test]
+fn without_faults_every_template_is_generated() {
+    let plant =
+        parse(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_default_faults.toml"))
+            .expect("parses");
+    let labels: Vec<&str> = plant.faults.iter().map(|f| f.label.as_str()).collect();
+    for want in [
+        "C4.stuck0",
+        "C4.stuck1",
+        "C4.unexpected_rise",
+        "C5.unexpected_fall",
+        "A4.actuator_stuck1",
+        "P.blocked_at.C4",
+        "P.blocked_between.C5.C4",
+    ] {
+        assert!(labels.contains(&want), "{want} missing from {labels:?}");
+    }
+    // 4 per sensor, 2 per actuator, 2 blocked_at, 2 blocked_between.
+    assert_eq!(plant.faults.len(), 4 * 2 + 2 + 2 + 2);
+    let names: Vec<&str> = plant.partitions.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["C4", "C5", "P"]);
+    // Actuator faults join the part's element.
+    assert!(plant.partition_of("A4.actuator_stuck0").is_some_and(|p| p.name == "P"));
+    assert_eq!(plant.signals.of_kind(SignalKind::Sensor).count(), 2);
+}

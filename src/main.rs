@@ -1,0 +1,70 @@
+//! `gardefou`: the command line.
+//!
+//! Every verb prints machine-readable output (JSON lines) on stdout and messages on
+//! stderr. Bad input ends with a one-line error on stderr and exit code 2.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod simulate;
+
+/// Decentralised timed fault diagnosis for PLC-controlled plants, coupled to the
+/// PLC's safety filter.
+#[derive(Debug, Parser)]
+#[command(name = "gardefou", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Simulate a reference plant (with injected faults) and write its logs.
+    Simulate(simulate::SimulateArgs),
+}
+
+/// A failure: bad input (exit code 2) or a failure of the machine (exit code 1).
+#[derive(Debug)]
+pub enum Failure {
+    /// The user's input is wrong: one line saying where and why.
+    BadInput(String),
+    /// Something outside the user's input failed (disk full, ...).
+    Io(String),
+}
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand) {
+                let _ = e.print();
+                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+                    ExitCode::from(2)
+                } else {
+                    ExitCode::SUCCESS
+                };
+            }
+            // clap's first line names the argument and the problem; the rest is usage.
+            let rendered = e.render().to_string();
+            let line = rendered.lines().find(|l| !l.trim().is_empty()).unwrap_or("error: bad arguments");
+            eprintln!("gardefou: {}", line.trim_start_matches("error: "));
+            return ExitCode::from(2);
+        }
+    };
+    let result = match cli.command {
+        Command::Simulate(args) => simulate::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failure::BadInput(message)) => {
+            eprintln!("gardefou: {message}");
+            ExitCode::from(2)
+        }
+        Err(Failure::Io(message)) => {
+            eprintln!("gardefou: {message}");
+            ExitCode::from(1)
+        }
+    }
+}
