@@ -10,7 +10,12 @@ use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl};
 use diagnoser::{MS, SECOND};
 
 fn config() -> SimConfig {
-    SimConfig { duration: 3600 * SECOND, scan_period: 10 * MS, seed: 7, faults: Vec::new() }
+    SimConfig {
+        duration: 3600 * SECOND,
+        scan_period: 10 * MS,
+        seed: 7,
+        faults: Vec::new(),
+    }
 }
 
 fn one_hour(c: &mut Criterion) {
@@ -29,7 +34,10 @@ fn one_hour(c: &mut Criterion) {
         b.iter(|| {
             let mut line = SortingLine::new(SortingConfig::default());
             let mut ctl = SynthesisedControl::new(line.ids());
-            let files = RunFiles { dir: dir.clone(), scans: false };
+            let files = RunFiles {
+                dir: dir.clone(),
+                scans: false,
+            };
             write_run(&files, &mut line, &mut ctl, &config(), |_| {}).map(|r| r.scans)
         })
     });

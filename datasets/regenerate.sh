@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# Regenerates every log shipped in datasets/ with the release build of gardefou.
-# Usage (from the repository root): bash datasets/regenerate.sh
+# Regenerates every log shipped in datasets/data with gardefou.
+# Usage (from anywhere): bash datasets/regenerate.sh [OUTPUT_DIR]
+# OUTPUT_DIR defaults to datasets/data. Set GARDEFOU to a gardefou binary to use
+# it instead of building the release binary (the tests do this).
 set -euo pipefail
-cd "$(dirname "$0")/.."
-cargo build --release --quiet
-g=target/release/gardefou
-d=datasets/data
+root=$(cd "$(dirname "$0")/.." && pwd)
+d=${1:-$root/datasets/data}
+g=${GARDEFOU:-}
+if [ -z "$g" ]; then
+  cargo build --release --quiet --manifest-path "$root/Cargo.toml"
+  g=$root/target/release/gardefou
+fi
 
 rm -rf "$d"
 "$g" simulate --plant sorting --duration 1h --seed 7 --out "$d/sorting/normal"
@@ -17,4 +22,3 @@ done
 "$g" simulate --plant cylinders --duration 1h --seed 7 --out "$d/cylinders/normal"
 "$g" simulate --plant cylinders --duration 20min --seed 7 --fault "stuck1(Se0)@600s" --out "$d/cylinders/Se0-stuck1"
 "$g" simulate --plant cylinders --duration 20min --seed 7 --fault "blocked_between(V1, Se0, Se1)@600s" --out "$d/cylinders/V1-blocked-between"
-du -sh "$d"

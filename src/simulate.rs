@@ -78,7 +78,12 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
             args.duration as f64 / 1e9
         )));
     }
-    let config = SimConfig { duration: args.duration, scan_period, seed: args.seed, faults };
+    let config = SimConfig {
+        duration: args.duration,
+        scan_period,
+        seed: args.seed,
+        faults,
+    };
 
     let bar = if std::io::stderr().is_terminal() {
         let bar = ProgressBar::new((args.duration / scan_period.max(1)) as u64);
@@ -90,7 +95,10 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
     } else {
         ProgressBar::hidden()
     };
-    let files = RunFiles { dir: args.out.clone(), scans: args.scans };
+    let files = RunFiles {
+        dir: args.out.clone(),
+        scans: args.scans,
+    };
     let progress = |t: Time| bar.set_position((t / scan_period.max(1)) as u64);
     let report = match args.plant {
         PlantKind::Sorting => {
@@ -107,7 +115,11 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
     .map_err(|e| Failure::Io(format!("cannot write {}: {e}", args.out.display())))?;
     bar.finish_and_clear();
 
-    let counters: Vec<String> = report.counters.iter().map(|(k, v)| format!("{k} {v}")).collect();
+    let counters: Vec<String> = report
+        .counters
+        .iter()
+        .map(|(k, v)| format!("{k} {v}"))
+        .collect();
     eprintln!(
         "simulated {} s of '{}' ({} scans): {} damage event(s); {}; wrote {}",
         args.duration as f64 / 1e9,

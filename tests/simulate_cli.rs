@@ -8,7 +8,10 @@ use diagnoser::log::{read_events, read_intervals_as_events};
 use diagnoser::{Plant, TimeUnit};
 
 fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou")).args(args).output().expect("runs the binary")
+    Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(args)
+        .output()
+        .expect("runs the binary")
 }
 
 fn simulate(out: &Path, extra: &[&str]) -> Output {
@@ -21,21 +24,47 @@ fn read(path: &Path) -> Vec<u8> {
     fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-const FILES: [&str; 6] = ["events.csv", "intervals.csv", "scans.csv", "truth.json", "damage.json", "plant.toml"];
+const FILES: [&str; 6] = [
+    "events.csv",
+    "intervals.csv",
+    "scans.csv",
+    "truth.json",
+    "damage.json",
+    "plant.toml",
+];
 
 #[test]
 fn same_seed_gives_byte_identical_files() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let (a, b, c) = (dir.path().join("a"), dir.path().join("b"), dir.path().join("c"));
-    let args = ["--duration", "10min", "--seed", "3", "--fault", "F2@300s", "--scans"];
+    let (a, b, c) = (
+        dir.path().join("a"),
+        dir.path().join("b"),
+        dir.path().join("c"),
+    );
+    let args = [
+        "--duration",
+        "10min",
+        "--seed",
+        "3",
+        "--fault",
+        "F2@300s",
+        "--scans",
+    ];
     for out in [&a, &b] {
         let o = simulate(out, &args);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     for name in FILES {
-        assert_eq!(read(&a.join(name)), read(&b.join(name)), "{name} differs between identical runs");
+        assert_eq!(
+            read(&a.join(name)),
+            read(&b.join(name)),
+            "{name} differs between identical runs"
+        );
     }
-    let o = simulate(&c, &["--duration", "10min", "--seed", "4", "--fault", "F2@300s"]);
+    let o = simulate(
+        &c,
+        &["--duration", "10min", "--seed", "4", "--fault", "F2@300s"],
+    );
     assert!(o.status.success());
     assert_ne!(read(&a.join("events.csv")), read(&c.join("events.csv")));
 }
@@ -44,7 +73,18 @@ fn same_seed_gives_byte_identical_files() {
 fn run_directory_is_complete_and_consistent() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("run");
-    let o = simulate(&out, &["--duration", "5min", "--scan-ms", "20", "--fault", "F5@120s", "--scans"]);
+    let o = simulate(
+        &out,
+        &[
+            "--duration",
+            "5min",
+            "--scan-ms",
+            "20",
+            "--fault",
+            "F5@120s",
+            "--scans",
+        ],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(o.stdout.is_empty(), "simulate prints nothing on stdout");
 
@@ -52,23 +92,32 @@ fn run_directory_is_complete_and_consistent() {
     assert_eq!(plant.scan_period, 20 * diagnoser::MS);
     assert_eq!(plant.faults.len(), 12);
 
-    let truth: serde_json::Value = serde_json::from_slice(&read(&out.join("truth.json"))).expect("json");
+    let truth: serde_json::Value =
+        serde_json::from_slice(&read(&out.join("truth.json"))).expect("json");
     assert_eq!(
         truth,
         serde_json::json!({"faults": [{"label": "F5", "template": "blocked_at(P, C4)", "onset": 120000}]})
     );
-    let damage: serde_json::Value = serde_json::from_slice(&read(&out.join("damage.json"))).expect("json");
+    let damage: serde_json::Value =
+        serde_json::from_slice(&read(&out.join("damage.json"))).expect("json");
     assert_eq!(damage["scans"], 5 * 60 * 50 + 1);
     assert!(damage["damage"].is_array());
 
     // The long and archive forms tell the same story.
-    let events = read_events(&out.join("events.csv"), &plant.signals, TimeUnit::Ms).expect("events read back");
+    let events = read_events(&out.join("events.csv"), &plant.signals, TimeUnit::Ms)
+        .expect("events read back");
     let intervals =
-        read_intervals_as_events(&out.join("intervals.csv"), &plant.signals, TimeUnit::Ms).expect("intervals read back");
+        read_intervals_as_events(&out.join("intervals.csv"), &plant.signals, TimeUnit::Ms)
+            .expect("intervals read back");
     assert_eq!(events, intervals);
     assert!(events.events.len() > 100);
     // Every event falls on a 20 ms scan.
-    assert!(events.events.iter().all(|e| e.t % (20 * diagnoser::MS) == 0));
+    assert!(
+        events
+            .events
+            .iter()
+            .all(|e| e.t % (20 * diagnoser::MS) == 0)
+    );
 }
 
 #[test]
@@ -79,14 +128,19 @@ fn cylinders_plant_runs() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let plant = Plant::from_path(&out.join("plant.toml")).expect("plant file parses");
     assert_eq!(plant.name, "cylinders");
-    let damage: serde_json::Value = serde_json::from_slice(&read(&out.join("damage.json"))).expect("json");
+    let damage: serde_json::Value =
+        serde_json::from_slice(&read(&out.join("damage.json"))).expect("json");
     assert_eq!(damage["damage"], serde_json::json!([]));
 }
 
 fn assert_bad_input(o: &Output, needle: &str) {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "stderr: {stderr}");
-    assert_eq!(stderr.trim_end().lines().count(), 1, "one-line error expected, got: {stderr}");
+    assert_eq!(
+        stderr.trim_end().lines().count(),
+        1,
+        "one-line error expected, got: {stderr}"
+    );
     assert!(stderr.contains(needle), "'{needle}' not in: {stderr}");
 }
 
@@ -97,15 +151,31 @@ fn bad_arguments_give_one_line_and_exit_code_2_and_keep_earlier_files() {
     assert!(simulate(&out, &["--duration", "2min"]).status.success());
     let before = read(&out.join("events.csv"));
 
-    assert_bad_input(&simulate(&out, &["--fault", "F13@10s"]), "unknown fault 'F13'");
-    assert_bad_input(&simulate(&out, &["--duration", "2 fortnights"]), "bad duration");
+    assert_bad_input(
+        &simulate(&out, &["--fault", "F13@10s"]),
+        "unknown fault 'F13'",
+    );
+    assert_bad_input(
+        &simulate(&out, &["--duration", "2 fortnights"]),
+        "bad duration",
+    );
     assert_bad_input(&simulate(&out, &["--fault", "F2"]), "LABEL@TIME");
     assert_bad_input(&simulate(&out, &["--fault", "stuck1(C44)@1s"]), "C44");
-    assert_bad_input(&simulate(&out, &["--duration", "1min", "--fault", "F2@2min"]), "after the end");
+    assert_bad_input(
+        &simulate(&out, &["--duration", "1min", "--fault", "F2@2min"]),
+        "after the end",
+    );
     assert_bad_input(&simulate(&out, &["--scan-ms", "0"]), "--scan-ms");
-    assert_bad_input(&gardefou(&["simulate", "--plant", "mill", "--out", "x"]), "mill");
+    assert_bad_input(
+        &gardefou(&["simulate", "--plant", "mill", "--out", "x"]),
+        "mill",
+    );
 
-    assert_eq!(read(&out.join("events.csv")), before, "a failed run touched earlier output");
+    assert_eq!(
+        read(&out.join("events.csv")),
+        before,
+        "a failed run touched earlier output"
+    );
     let leftovers: Vec<_> = fs::read_dir(&out)
         .expect("dir")
         .filter_map(Result::ok)
@@ -119,7 +189,15 @@ fn help_is_available_on_every_verb() {
     let o = gardefou(&["simulate", "--help"]);
     assert!(o.status.success());
     let text = String::from_utf8_lossy(&o.stdout);
-    for flag in ["--plant", "--duration", "--seed", "--fault", "--scan-ms", "--out", "--scans"] {
+    for flag in [
+        "--plant",
+        "--duration",
+        "--seed",
+        "--fault",
+        "--scan-ms",
+        "--out",
+        "--scans",
+    ] {
         assert!(text.contains(flag), "{flag} missing from help");
     }
 }

@@ -8,23 +8,33 @@
 //! Positions are fractions: the rod of cylinder `i` is at `r` in `[0, 1]` (0 =
 //! retracted, 1 = out, its tip then at corner `i+1`), and an object on the side
 //! from corner `i` to `i+1` is at progress `q` in `[0, 1]`. The rod pushes the
-//! object when it reaches it (`q = max(q, r)`) and leaves it where it is when it
-//! returns. Limit switches: `Sx0` at `r <= 0.02`, `Sx1` at `r >= 0.98`. The presence
-//! sensor of corner `i` sees an object that has not left it yet (`q < 0.15`) or
-//! one about to arrive from corner `i-1` (`q > 0.85`); at `q >= 0.98` the object is
-//! at corner `i+1`.
+//! object when it comes from behind and reaches it (`q = max(q, r)`) and leaves it
+//! where it is when it returns. Limit switches: `Sx0` at `r <= 0.02`, `Sx1` at
+//! `r >= 0.98`. The presence sensor of corner `i` sees an object that has not left
+//! it yet (`q < 0.15`) or one about to arrive from corner `i-1` (`q > 0.85`); at
+//! `q >= 0.98` the object is at corner `i+1`.
 //!
 //! Reconstruction choices (the seed gives the constraints and the GRAFCETs, not the
 //! rig's dynamics):
 //! - the cylinders are single-acting: the order extends the rod, the spring
 //!   returns it; stroke times are drawn per stroke (see [`CylinderConfig`]);
 //! - no constraint forbids cylinder `i+1` to go out while cylinder `i` is
-//!   returning, so the rig is only safe because a spring return is faster than an
-//!   extension: the default timings keep a returning rod behind the half-way point
-//!   before its neighbour reaches it;
-//! - priorities of the combined constraints, and the reading of seed 001
-//!   figure 3: see [`ConstraintControl`] and `plants/cylinders.toml`.
+//!   returning (with three objects it never wants to, but with free corners or
+//!   faults it may), so the rig relies on a spring return being faster than an
+//!   extension: the default timings bring a returning rod back behind the half-way
+//!   point before its neighbour reaches it;
+//! - the reading of seed 001 figure 3: see [`ConstraintControl`];
+//! - the seed names no priorities for its combined constraints; ours, and the
+//!   trade-off of the one for CSc4 (Q9 over Q12, unsafe with fewer than three
+//!   objects), are explained in `plants/cylinders.toml`.
+//!
+//! Damage: `rod_collision` when an object pushed to within reach of the next
+//! corner meets that corner's rod out (further than 0.05), or when two adjacent
+//! rods are both more than half out; `object_collision` when an object is pushed
+//! into a corner where another one still sits (the pushed one falls off and counts
+//! as lost).
 
+use diagnoser::expr::Expr;
 use diagnoser::{FaultTemplate, MS, Plant, SignalId, Time};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
@@ -36,7 +46,10 @@ pub const PLANT_TOML: &str = include_str!("../plants/cylinders.toml");
 
 /// Parses the shipped plant file.
 pub fn plant() -> Plant {
-    match Plant::parse(PLANT_TOML, std::path::Path::new("datasets/plants/cylinders.toml")) {
+    match Plant::parse(
+        PLANT_TOML,
+        std::path::Path::new("datasets/plants/cylinders.toml"),
+    ) {
         Ok(p) => p,
         // The file is compiled in and covered by tests.
         Err(e) => panic!("shipped cylinders plant file is invalid: {e}"),
@@ -66,7 +79,7 @@ const HALF: f64 = 0.5;
 
 /// Stroke times in ms, each drawn uniformly per stroke.
 ///
-/// The return range must stay below half the extension range: the seed's
+/// The slowest return must stay faster than the fastest extension: the seed's
 /// constraints let cylinder `i+1` go out as soon as cylinder `i` is released, and
 /// the two rods hit each other if both are more than half out.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -80,12 +93,15 @@ pub struct CylinderConfig {
 impl Default for CylinderConfig {
     fn default() -> Self {
         // A rod is half out at >= 450 ms and half back by <= 400 ms: 50 ms of margin.
-        CylinderConfig { extend_ms: (900.0, 1100.0), retract_ms: (600.0, 800.0) }
+        CylinderConfig {
+            extend_ms: (900.0, 1100.0),
+            retract_ms: (600.0, 800.0),
+        }
     }
 }
 
-/// Signal ids of the rig, resolved once from the plant file; index 0 is
-/// cylinder 1 (corner 1).
+/// Signal ids of the rig, and its combined constraints, resolved once from the
+/// plant file; index 0 is cylinder 1 (corner 1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CylinderIds {
     /// Retracted switches Se0, Sf0, Sg0, Sh0.
@@ -96,6 +112,11 @@ pub struct CylinderIds {
     pub present: [usize; CYLINDERS],
     /// Extension orders Q9 to Q12.
     pub extend: [usize; CYLINDERS],
+    /// The combined constraints (seed 001 eq. 27–30) in file order, each as
+    /// (priority, other) cylinder indices: CSc1 = `Q9 & Q10` with priority Q9 is
+    /// `(0, 1)`. Read from the plant file so that the control applies the
+    /// priorities the file declares.
+    pub combined: [(usize, usize); CYLINDERS],
 }
 
 impl CylinderIds {
@@ -115,11 +136,52 @@ impl CylinderIds {
             }
             Ok(out)
         };
+        let extend = four(["Q9", "Q10", "Q11", "Q12"])?;
         Ok(CylinderIds {
             retracted: four(["Se0", "Sf0", "Sg0", "Sh0"])?,
             extended: four(["Se1", "Sf1", "Sg1", "Sh1"])?,
             present: four(["I13", "I14", "I15", "I16"])?,
-            extend: four(["Q9", "Q10", "Q11", "Q12"])?,
+            extend,
+            combined: Self::resolve_combined(plant, &extend)?,
+        })
+    }
+
+    /// The constraints with a priority, each of the form `Qa & Qb` (the control
+    /// knows no other form: seed 001's CSc here have no condition besides the two
+    /// orders).
+    fn resolve_combined(
+        plant: &Plant,
+        extend: &[usize; CYLINDERS],
+    ) -> Result<[(usize, usize); CYLINDERS], String> {
+        let cylinder = |name: &str| {
+            plant
+                .signals
+                .id(name)
+                .and_then(|id| extend.iter().position(|&i| i == id.index()))
+        };
+        let mut out = Vec::new();
+        for c in plant.constraints.iter().filter(|c| c.priority.is_some()) {
+            let pair = match &c.expr {
+                Expr::And(terms) => match terms.as_slice() {
+                    [Expr::Var(a), Expr::Var(b)] => cylinder(a).zip(cylinder(b)),
+                    _ => None,
+                },
+                _ => None,
+            };
+            let (a, b) = pair.filter(|(a, b)| a != b).ok_or_else(|| {
+                format!("combined constraint {} = {} is not of the form Qa & Qb (two orders of the rig)", c.name, c.expr)
+            })?;
+            let prio = c
+                .priority
+                .and_then(|id| extend.iter().position(|&i| i == id.index()));
+            out.push(if prio == Some(a) { (a, b) } else { (b, a) });
+        }
+        out.try_into().map_err(|v: Vec<_>| {
+            format!(
+                "plant '{}' has {} combined constraints; the rig has four (CSc1 to CSc4)",
+                plant.name,
+                v.len()
+            )
         })
     }
 }
@@ -183,10 +245,13 @@ impl CylinderRig {
             Ok(ids) => ids,
             Err(e) => panic!("shipped cylinders plant file: {e}"),
         };
-        // Only used if a rod starts a stroke without an order change, which it
-        // cannot: every stroke draws its own speed.
-        let speed = 1.0 / (config.retract_ms.1.max(1.0) * MS as f64);
-        let rod = Rod { r: 0.0, order: false, speed, block: None };
+        // At rest: each stroke draws its speed when its order changes.
+        let rod = Rod {
+            r: 0.0,
+            order: false,
+            speed: 0.0,
+            block: None,
+        };
         let mut rig = CylinderRig {
             plant,
             ids,
@@ -207,7 +272,9 @@ impl CylinderRig {
     pub fn with_objects(mut self, corners: &[usize]) -> Result<CylinderRig, String> {
         for (i, &c) in corners.iter().enumerate() {
             if !(1..=CYLINDERS).contains(&c) {
-                return Err(format!("corner {c} does not exist (corners are 1 to {CYLINDERS})"));
+                return Err(format!(
+                    "corner {c} does not exist (corners are 1 to {CYLINDERS})"
+                ));
             }
             if corners[..i].contains(&c) {
                 return Err(format!("two objects at corner {c}"));
@@ -221,7 +288,12 @@ impl CylinderRig {
         self.objects = corners
             .iter()
             .enumerate()
-            .map(|(i, &c)| Object { id: i as u64 + 1, corner: c - 1, q: 0.0, hit_rod: false })
+            .map(|(i, &c)| Object {
+                id: i as u64 + 1,
+                corner: c - 1,
+                q: 0.0,
+                hit_rod: false,
+            })
             .collect();
     }
 
@@ -241,7 +313,11 @@ impl CylinderRig {
     }
 
     fn draw_ms(rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)) -> f64 {
-        let ms = if hi > lo { rng.random_range(lo..hi) } else { lo };
+        let ms = if hi > lo {
+            rng.random_range(lo..hi)
+        } else {
+            lo
+        };
         ms.max(1.0)
     }
 
@@ -251,15 +327,26 @@ impl CylinderRig {
             if order != rod.order {
                 // A new stroke (possibly reversing mid-way) draws its own duration.
                 rod.order = order;
-                let range = if order { self.config.extend_ms } else { self.config.retract_ms };
+                let range = if order {
+                    self.config.extend_ms
+                } else {
+                    self.config.retract_ms
+                };
                 rod.speed = 1.0 / (Self::draw_ms(rng, range) * MS as f64);
             }
             let old = rod.r;
-            let mut new =
-                if order { (old + rod.speed * dt).min(1.0) } else { (old - rod.speed * dt).max(0.0) };
+            let mut new = if order {
+                (old + rod.speed * dt).min(1.0)
+            } else {
+                (old - rod.speed * dt).max(0.0)
+            };
             match &mut rod.block {
                 Some(Block::At { retracted }) => {
-                    let stuck = if *retracted { old <= RETRACTED_AT } else { old >= EXTENDED_AT };
+                    let stuck = if *retracted {
+                        old <= RETRACTED_AT
+                    } else {
+                        old >= EXTENDED_AT
+                    };
                     if stuck {
                         new = old;
                     }
@@ -267,7 +354,8 @@ impl CylinderRig {
                 Some(Block::Between { outwards, frozen }) => {
                     if *frozen {
                         new = old;
-                    } else if *outwards == order && old != new && (old - HALF) * (new - HALF) <= 0.0 {
+                    } else if *outwards == order && old != new && (old - HALF) * (new - HALF) <= 0.0
+                    {
                         *frozen = true;
                         new = HALF;
                     }
@@ -278,10 +366,14 @@ impl CylinderRig {
         }
     }
 
-    fn move_objects(&mut self, t: Time, damage: &mut Vec<Damage>) {
+    fn move_objects(&mut self, t: Time, before: [f64; CYLINDERS], damage: &mut Vec<Damage>) {
         let rods = self.rods();
         for o in &mut self.objects {
-            o.q = o.q.max(rods[o.corner]);
+            // Only a rod coming from behind pushes: an object that lands in front of
+            // a rod already out stays put (and the arrival is recorded as a collision).
+            if before[o.corner] <= o.q && rods[o.corner] > o.q {
+                o.q = rods[o.corner];
+            }
         }
         // Contacts at the corner ahead, judged on everyone's new position.
         let mut lost = Vec::new();
@@ -304,7 +396,10 @@ impl CylinderRig {
                 });
                 self.objects[i].hit_rod = true;
             }
-            let sitting = self.objects.iter().find(|p| p.id != o.id && p.corner == to && p.q < HALF);
+            let sitting = self
+                .objects
+                .iter()
+                .find(|p| p.id != o.id && p.corner == to && p.q < HALF);
             if let Some(p) = sitting {
                 damage.push(Damage {
                     t,
@@ -343,7 +438,11 @@ impl CylinderRig {
                 damage.push(Damage {
                     t,
                     cause: "rod_collision",
-                    detail: format!("the rods of cylinders {} and {} were both more than half out", k + 1, next(k) + 1),
+                    detail: format!(
+                        "the rods of cylinders {} and {} were both more than half out",
+                        k + 1,
+                        next(k) + 1
+                    ),
                 });
             }
             self.rods_touching[k] = touching;
@@ -361,8 +460,9 @@ impl Physics for CylinderRig {
             return;
         };
         // The orders in `act` were written at `last` and have acted since.
+        let before = self.rods();
         self.move_rods((t - last) as f64, act, rng);
-        self.move_objects(t, damage);
+        self.move_objects(t, before, damage);
         self.check_rods(t, damage);
     }
 
@@ -385,7 +485,8 @@ impl Physics for CylinderRig {
 
     fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String> {
         let element = match template {
-            FaultTemplate::BlockedAt { element, .. } | FaultTemplate::BlockedBetween { element, .. } => element,
+            FaultTemplate::BlockedAt { element, .. }
+            | FaultTemplate::BlockedBetween { element, .. } => element,
             other => return Err(format!("{other} is not an element fault")),
         };
         let k = match element.as_str() {
@@ -393,9 +494,14 @@ impl Physics for CylinderRig {
             "V2" => 1,
             "V3" => 2,
             "V4" => 3,
-            other => return Err(format!("the cylinder rig has no element {other} (rods are V1 to V4)")),
+            other => {
+                return Err(format!(
+                    "the cylinder rig has no element {other} (rods are V1 to V4)"
+                ));
+            }
         };
-        let names = |ids: &[usize; CYLINDERS]| self.plant.signals.name(SignalId(ids[k] as u32)).to_string();
+        let names =
+            |ids: &[usize; CYLINDERS]| self.plant.signals.name(SignalId(ids[k] as u32)).to_string();
         let (s0, s1) = (names(&self.ids.retracted), names(&self.ids.extended));
         // true for the retracted end, false for the extended end.
         let end = |s: &str| -> Result<bool, String> {
@@ -404,17 +510,24 @@ impl Physics for CylinderRig {
             } else if s == s1 {
                 Ok(false)
             } else {
-                Err(format!("rod {element} has no end sensed by {s} (its ends are {s0} and {s1})"))
+                Err(format!(
+                    "rod {element} has no end sensed by {s} (its ends are {s0} and {s1})"
+                ))
             }
         };
         self.rods[k].block = Some(match template {
-            FaultTemplate::BlockedAt { at, .. } => Block::At { retracted: end(at)? },
+            FaultTemplate::BlockedAt { at, .. } => Block::At {
+                retracted: end(at)?,
+            },
             FaultTemplate::BlockedBetween { from, to, .. } => {
                 let (from, to) = (end(from)?, end(to)?);
                 if from == to {
                     return Err(format!("{template}: the two positions must differ"));
                 }
-                Block::Between { outwards: from, frozen: false }
+                Block::Between {
+                    outwards: from,
+                    frozen: false,
+                }
             }
             other => return Err(format!("the cylinder rig cannot simulate {other}")),
         });
@@ -422,7 +535,10 @@ impl Physics for CylinderRig {
     }
 
     fn counters(&self) -> Vec<(String, u64)> {
-        vec![("moves".into(), self.moves), ("objects_lost".into(), self.lost)]
+        vec![
+            ("moves".into(), self.moves),
+            ("objects_lost".into(), self.lost),
+        ]
     }
 }
 
@@ -437,15 +553,6 @@ pub enum Step {
     Retract,
 }
 
-/// The combined constraints (seed 001 eq. 27–30) as (priority, other) cylinder
-/// indices, in the order of the plant file: CSc1 = Q9 & Q10 (Q9), CSc2 = Q10 & Q11
-/// (Q10), CSc3 = Q11 & Q12 (Q11), CSc4 = Q12 & Q9 (Q9).
-///
-/// The seed names no priorities. Q9 over Q12 in CSc4, rather than the upstream
-/// cylinder as in the other three, keeps the priorities free of cycles; the plant
-/// file explains the trade-off.
-pub const COMBINED: [(usize, usize); CYLINDERS] = [(0, 1), (1, 2), (2, 3), (0, 3)];
-
 /// Seed 001's control by constraints: four functional GRAFCETs, then the safety
 /// constraints.
 ///
@@ -454,14 +561,17 @@ pub const COMBINED: [(usize, usize); CYLINDERS] = [(0, 1), (1, 2), (2, 3), (0, 3
 /// Idle on `Sx0_k`, and `g1k` is "Extend is active". The simple safety constraints
 /// give, with `Qk*` the previous scan's order (eq. 35–38):
 /// `f0k = !Sx0_j | !Qk* & I_j` (must be 0) and `f1k = !Sx1_k & Qk*` (must be 1), so
-/// `S'k = !f0k & g1k | f1k` (eq. 39). Then the loop of figure 3 over
-/// [`COMBINED`]: each violated combined constraint switches its non-priority
-/// output off, until none is violated.
+/// `S'k = !f0k & g1k | f1k` (eq. 39). Then the loop of figure 3 over the combined
+/// constraints ([`CylinderIds::combined`]): each violated one switches its
+/// non-priority output off, until none is violated.
 ///
 /// Figure 3 evaluates every combined constraint on the `S'` of the previous pass;
 /// where two constraints would write the same output in one pass (one "Sk = S'k",
-/// the other "Sl = 0"), the 0 wins: a pass only ever switches orders off, so the
-/// loop ends after at most four passes.
+/// the other "Sl = 0"), the 0 wins. Read literally, the later write would win and
+/// the loop could cycle forever (e.g. on `S' = 0111`). With zeros winning, a pass
+/// only switches orders off and one pass settles it; the loop is kept as in the
+/// figure. It may switch off more than needed: on `0111`, Q12 yields to Q11 even
+/// though Q11 itself yields to Q10.
 #[derive(Debug, Clone)]
 pub struct ConstraintControl {
     ids: CylinderIds,
@@ -472,7 +582,10 @@ impl ConstraintControl {
     /// The control law for a plant with the rig's signals; every GRAFCET in its
     /// initial step.
     pub fn new(ids: CylinderIds) -> Self {
-        ConstraintControl { ids, steps: [Step::Idle; CYLINDERS] }
+        ConstraintControl {
+            ids,
+            steps: [Step::Idle; CYLINDERS],
+        }
     }
 
     /// The active step of each cylinder's GRAFCET (index 0 = cylinder 1).
@@ -486,13 +599,14 @@ impl ConstraintControl {
     }
 
     /// Applies the combined constraints to the intermediate orders `s` (figure 3).
-    pub fn combine(mut s: [bool; CYLINDERS]) -> [bool; CYLINDERS] {
+    pub fn combine(&self, mut s: [bool; CYLINDERS]) -> [bool; CYLINDERS] {
+        let combined = &self.ids.combined;
         loop {
             let mut out = s;
-            for &(_, other) in COMBINED.iter().filter(|&&(p, o)| s[p] && s[o]) {
+            for &(_, other) in combined.iter().filter(|&&(p, o)| s[p] && s[o]) {
                 out[other] = false;
             }
-            let violated = COMBINED.iter().any(|&(p, o)| out[p] && out[o]);
+            let violated = combined.iter().any(|&(p, o)| out[p] && out[o]);
             s = out;
             if !violated {
                 return s;
@@ -528,7 +642,7 @@ impl Controller for ConstraintControl {
             let f1 = !extended[k] && before[k];
             *out = !f0 && g1[k] || f1;
         }
-        for (&i, v) in ids.extend.iter().zip(Self::combine(s)) {
+        for (&i, v) in ids.extend.iter().zip(self.combine(s)) {
             io[i] = v;
         }
     }

@@ -24,10 +24,15 @@ impl std::str::FromStr for FaultSpec {
             .rsplit_once('@')
             .ok_or_else(|| format!("bad fault '{text}': expected LABEL@TIME, e.g. F2@600s"))?;
         if what.trim().is_empty() {
-            return Err(format!("bad fault '{text}': missing fault label before '@'"));
+            return Err(format!(
+                "bad fault '{text}': missing fault label before '@'"
+            ));
         }
         let onset = time::parse_duration(at).map_err(|e| format!("bad fault '{text}': {e}"))?;
-        Ok(FaultSpec { what: what.trim().to_string(), onset })
+        Ok(FaultSpec {
+            what: what.trim().to_string(),
+            onset,
+        })
     }
 }
 
@@ -47,13 +52,22 @@ impl Injection {
     /// whose arguments name the plant's signals and elements.
     pub fn resolve(spec: &FaultSpec, plant: &Plant) -> Result<Injection, String> {
         if let Some(def) = plant.fault(&spec.what) {
-            return Ok(Injection { label: def.label.clone(), template: def.template.clone(), onset: spec.onset });
+            return Ok(Injection {
+                label: def.label.clone(),
+                template: def.template.clone(),
+                onset: spec.onset,
+            });
         }
         let template: FaultTemplate = spec.what.parse().map_err(|e: String| {
             if spec.what.contains('(') {
                 e
             } else {
-                let labels: Vec<&str> = plant.faults.iter().map(|f| f.label.as_str()).take(16).collect();
+                let labels: Vec<&str> = plant
+                    .faults
+                    .iter()
+                    .map(|f| f.label.as_str())
+                    .take(16)
+                    .collect();
                 format!(
                     "unknown fault '{}' for plant '{}' (known: {}{})",
                     spec.what,
@@ -66,27 +80,50 @@ impl Injection {
         let kind = |name: &str| plant.signals.id(name).map(|id| plant.signals.get(id).kind);
         match template.target() {
             FaultTarget::Sensor | FaultTarget::Actuator => {
-                let want = if template.target() == FaultTarget::Sensor { SignalKind::Sensor } else { SignalKind::Actuator };
+                let want = if template.target() == FaultTarget::Sensor {
+                    SignalKind::Sensor
+                } else {
+                    SignalKind::Actuator
+                };
                 let s = template.arguments()[0];
                 match kind(s) {
                     None => return Err(format!("unknown signal '{s}' in fault '{template}'")),
-                    Some(k) if k != want => return Err(format!("'{s}' in fault '{template}' is not {}", want.with_article())),
+                    Some(k) if k != want => {
+                        return Err(format!(
+                            "'{s}' in fault '{template}' is not {}",
+                            want.with_article()
+                        ));
+                    }
                     Some(_) => {}
                 }
             }
             FaultTarget::Element => {
                 let args = template.arguments();
-                let Some(part) = plant.parts.iter().find(|p| p.element.as_deref() == Some(args[0])) else {
-                    return Err(format!("unknown element '{}' in fault '{template}'", args[0]));
+                let Some(part) = plant
+                    .parts
+                    .iter()
+                    .find(|p| p.element.as_deref() == Some(args[0]))
+                else {
+                    return Err(format!(
+                        "unknown element '{}' in fault '{template}'",
+                        args[0]
+                    ));
                 };
                 for s in &args[1..] {
                     if !part.sensors.iter().any(|&id| plant.signals.name(id) == *s) {
-                        return Err(format!("'{s}' in fault '{template}' is not a sensor of part '{}'", part.name));
+                        return Err(format!(
+                            "'{s}' in fault '{template}' is not a sensor of part '{}'",
+                            part.name
+                        ));
                     }
                 }
             }
         }
-        Ok(Injection { label: spec.what.clone(), template, onset: spec.onset })
+        Ok(Injection {
+            label: spec.what.clone(),
+            template,
+            onset: spec.onset,
+        })
     }
 }
 
@@ -150,7 +187,12 @@ impl SensorInjector {
     pub fn new(signals: &SignalTable, faults: &[Injection]) -> Self {
         let mut out = SensorInjector::default();
         for f in faults {
-            let Some(index) = f.template.signal().and_then(|s| signals.id(s)).map(|id| id.index()) else {
+            let Some(index) = f
+                .template
+                .signal()
+                .and_then(|s| signals.id(s))
+                .map(|id| id.index())
+            else {
                 continue;
             };
             let mode = match &f.template {
@@ -168,7 +210,11 @@ impl SensorInjector {
                 }
                 _ => continue,
             };
-            out.sensors.push(SensorFault { index, onset: f.onset, mode });
+            out.sensors.push(SensorFault {
+                index,
+                onset: f.onset,
+                mode,
+            });
         }
         out
     }

@@ -20,4 +20,4 @@ pub mod sim;
 pub mod sorting;
 
 pub use inject::{FaultSpec, Injection};
-pub use sim::{Controller, Damage, Physics, SimConfig, SimReport, ScanSink, run};
+pub use sim::{Controller, Damage, Physics, ScanSink, SimConfig, SimReport, run};

@@ -39,7 +39,10 @@ impl LogRecorder {
     pub fn create(dir: &Path, plant: &Plant, with_scans: bool) -> io::Result<LogRecorder> {
         let format = TimeFormat::Numeric(plant.time_unit);
         let open = |name: &str| -> io::Result<Out> {
-            Ok(BufWriter::with_capacity(1 << 16, File::create(dir.join(name))?))
+            Ok(BufWriter::with_capacity(
+                1 << 16,
+                File::create(dir.join(name))?,
+            ))
         };
         Ok(LogRecorder {
             events: EventWriter::new(open("events.csv")?, &plant.signals, format)?,
@@ -55,10 +58,22 @@ impl LogRecorder {
 
     /// Flushes and closes every file.
     pub fn finish(self) -> io::Result<()> {
-        self.events.finish()?.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        self.intervals.finish()?.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        self.events
+            .finish()?
+            .into_inner()
+            .map_err(|e| e.into_error())?
+            .sync_all()?;
+        self.intervals
+            .finish()?
+            .into_inner()
+            .map_err(|e| e.into_error())?
+            .sync_all()?;
         if let Some(scans) = self.scans {
-            scans.finish()?.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+            scans
+                .finish()?
+                .into_inner()
+                .map_err(|e| e.into_error())?
+                .sync_all()?;
         }
         Ok(())
     }
@@ -76,7 +91,11 @@ impl ScanSink for LogRecorder {
             for (i, (old, &new)) in self.last.iter_mut().zip(values).enumerate() {
                 if *old != new {
                     *old = new;
-                    let e = Event { t, signal: SignalId(i as u32), value: new };
+                    let e = Event {
+                        t,
+                        signal: SignalId(i as u32),
+                        value: new,
+                    };
                     self.events.write(&e)?;
                     self.intervals.write(&e)?;
                 }
@@ -97,7 +116,9 @@ pub fn write_run<P: Physics, C: Controller>(
     progress: impl FnMut(Time),
 ) -> io::Result<SimReport> {
     fs::create_dir_all(&files.dir)?;
-    let staging = files.dir.join(format!(".gardefou-staging-{}", std::process::id()));
+    let staging = files
+        .dir
+        .join(format!(".gardefou-staging-{}", std::process::id()));
     let result = (|| {
         fs::create_dir_all(&staging)?;
         let plant = physics.plant().clone();
@@ -106,14 +127,20 @@ pub fn write_run<P: Physics, C: Controller>(
         recorder.finish()?;
 
         let unit = plant.time_unit;
-        write_json(&staging.join("truth.json"), &truth_json(&config.faults, unit))?;
+        write_json(
+            &staging.join("truth.json"),
+            &truth_json(&config.faults, unit),
+        )?;
         let damage: Vec<serde_json::Value> = report
             .damage
             .iter()
             .map(|d| serde_json::json!({ "t": time_value(d.t, unit), "cause": d.cause, "detail": d.detail }))
             .collect();
-        let counters: serde_json::Map<String, serde_json::Value> =
-            report.counters.iter().map(|(k, v)| (k.clone(), (*v).into())).collect();
+        let counters: serde_json::Map<String, serde_json::Value> = report
+            .counters
+            .iter()
+            .map(|(k, v)| (k.clone(), (*v).into()))
+            .collect();
         let summary = serde_json::json!({
             "plant": plant.name,
             "seed": config.seed,
@@ -125,9 +152,18 @@ pub fn write_run<P: Physics, C: Controller>(
             "counters": counters,
         });
         write_json(&staging.join("damage.json"), &summary)?;
-        fs::write(staging.join("plant.toml"), plant_file(&plant, config.scan_period))?;
+        fs::write(
+            staging.join("plant.toml"),
+            plant_file(&plant, config.scan_period),
+        )?;
 
-        let mut names = vec!["events.csv", "intervals.csv", "truth.json", "damage.json", "plant.toml"];
+        let mut names = vec![
+            "events.csv",
+            "intervals.csv",
+            "truth.json",
+            "damage.json",
+            "plant.toml",
+        ];
         if files.scans {
             names.push("scans.csv");
         }
@@ -157,7 +193,13 @@ fn plant_file(plant: &Plant, scan_period: Time) -> String {
     let ms = diagnoser::TimeUnit::Ms.format(scan_period);
     source
         .lines()
-        .map(|l| if l.starts_with("scan_period_ms") { format!("scan_period_ms = {ms}") } else { l.to_string() })
+        .map(|l| {
+            if l.starts_with("scan_period_ms") {
+                format!("scan_period_ms = {ms}")
+            } else {
+                l.to_string()
+            }
+        })
         .collect::<Vec<_>>()
         .join("\n")
         + "\n"

@@ -1,8 +1,8 @@
 //! The scan loop shared by every simulated plant.
 
 use diagnoser::{FaultTemplate, Plant, Time};
-use rand_chacha::ChaCha8Rng;
 use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use crate::inject::{Injection, SensorInjector};
@@ -27,7 +27,13 @@ pub trait Physics {
     /// Advances the plant to time `t`, with the actuators physically at `actuators`
     /// (indexed like the plant's signals; sensor entries are meaningless) since the
     /// previous call. Physical harm is appended to `damage`.
-    fn advance(&mut self, t: Time, actuators: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>);
+    fn advance(
+        &mut self,
+        t: Time,
+        actuators: &[bool],
+        rng: &mut ChaCha8Rng,
+        damage: &mut Vec<Damage>,
+    );
 
     /// Writes the true value of every sensor into its entry of `io`.
     fn read_sensors(&self, io: &mut [bool]);

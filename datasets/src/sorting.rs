@@ -26,7 +26,10 @@ pub const PLANT_TOML: &str = include_str!("../plants/sorting.toml");
 
 /// Parses the shipped plant file.
 pub fn plant() -> Plant {
-    match Plant::parse(PLANT_TOML, std::path::Path::new("datasets/plants/sorting.toml")) {
+    match Plant::parse(
+        PLANT_TOML,
+        std::path::Path::new("datasets/plants/sorting.toml"),
+    ) {
         Ok(p) => p,
         // The file is compiled in and covered by tests.
         Err(e) => panic!("shipped sorting plant file is invalid: {e}"),
@@ -273,8 +276,18 @@ impl SortingLine {
 
     /// Puts a box on the line at `lo` (its lower end) of the loading line, for tests.
     pub fn place_box(&mut self, large: bool, lo: f64) {
-        let len = if large { self.config.large_len } else { self.config.small_len };
-        self.boxes.push(Carton { id: self.next_id, len, large, frame: Frame::Loading, lo });
+        let len = if large {
+            self.config.large_len
+        } else {
+            self.config.small_len
+        };
+        self.boxes.push(Carton {
+            id: self.next_id,
+            len,
+            large,
+            frame: Frame::Loading,
+            lo,
+        });
         self.next_id += 1;
     }
 
@@ -285,7 +298,11 @@ impl SortingLine {
     }
 
     fn uniform_ms(rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)) -> Time {
-        let ms = if hi > lo { rng.random_range(lo..hi) } else { lo };
+        let ms = if hi > lo {
+            rng.random_range(lo..hi)
+        } else {
+            lo
+        };
         (ms * MS as f64).round() as Time
     }
 
@@ -296,17 +313,43 @@ impl SortingLine {
         self.a4 = a4;
         let timing = self.config.timing;
         let (dir, leave, reach, in_zone, boundary) = if a4 {
-            (1.0, timing.leave_loading, timing.reach_unloading, self.p <= P4, P4)
+            (
+                1.0,
+                timing.leave_loading,
+                timing.reach_unloading,
+                self.p <= P4,
+                P4,
+            )
         } else {
-            (-1.0, timing.leave_unloading, timing.reach_loading, self.p >= P5, P5)
+            (
+                -1.0,
+                timing.leave_unloading,
+                timing.reach_loading,
+                self.p >= P5,
+                P5,
+            )
         };
         let leave = Self::uniform_ms(rng, leave);
         let reach = Self::uniform_ms(rng, reach).max(leave + MS);
         let speed = (P5 - P4) / (reach - leave) as f64;
         self.motion = Some(if in_zone {
-            Motion { dir, t0: t, p0: self.p, t1: t + leave, p1: boundary + dir * 1e-9, speed }
+            Motion {
+                dir,
+                t0: t,
+                p0: self.p,
+                t1: t + leave,
+                p1: boundary + dir * 1e-9,
+                speed,
+            }
         } else {
-            Motion { dir, t0: t, p0: self.p, t1: t, p1: self.p, speed }
+            Motion {
+                dir,
+                t0: t,
+                p0: self.p,
+                t1: t,
+                p1: self.p,
+                speed,
+            }
         });
     }
 
@@ -359,12 +402,36 @@ impl SortingLine {
         };
         let c = b.centre();
         match b.frame {
-            Frame::Loading if c < FEED_END => if a(0) { v } else { 0.0 },
-            Frame::Loading if c < INTER_END => if a(1) { v } else { 0.0 },
+            Frame::Loading if c < FEED_END => {
+                if a(0) {
+                    v
+                } else {
+                    0.0
+                }
+            }
+            Frame::Loading if c < INTER_END => {
+                if a(1) {
+                    v
+                } else {
+                    0.0
+                }
+            }
             Frame::Loading => rollers,
             Frame::Table => rollers,
-            Frame::Unloading if c >= HALF => if a(5) { v } else { 0.0 },
-            Frame::Unloading if c < -HALF => if a(6) { -v } else { 0.0 },
+            Frame::Unloading if c >= HALF => {
+                if a(5) {
+                    v
+                } else {
+                    0.0
+                }
+            }
+            Frame::Unloading if c < -HALF => {
+                if a(6) {
+                    -v
+                } else {
+                    0.0
+                }
+            }
             Frame::Unloading => rollers,
         }
     }
@@ -424,7 +491,11 @@ impl SortingLine {
     }
 
     fn move_boxes(&mut self, t: Time, dt: f64, act: &[bool], damage: &mut Vec<Damage>) {
-        let moves: Vec<f64> = self.boxes.iter().map(|b| self.velocity(b, act) * dt).collect();
+        let moves: Vec<f64> = self
+            .boxes
+            .iter()
+            .map(|b| self.velocity(b, act) * dt)
+            .collect();
         for (b, d) in self.boxes.iter_mut().zip(&moves) {
             b.lo += d;
         }
@@ -432,7 +503,9 @@ impl SortingLine {
         let mut order: Vec<usize> = (0..self.boxes.len()).collect();
         order.sort_by(|&i, &j| {
             let (a, b) = (&self.boxes[i], &self.boxes[j]);
-            (a.frame as u8, a.lo).partial_cmp(&(b.frame as u8, b.lo)).unwrap_or(std::cmp::Ordering::Equal)
+            (a.frame as u8, a.lo)
+                .partial_cmp(&(b.frame as u8, b.lo))
+                .unwrap_or(std::cmp::Ordering::Equal)
         });
         let mut contacts = Vec::new();
         for w in order.windows(2) {
@@ -450,7 +523,10 @@ impl SortingLine {
             } else {
                 self.boxes[j].lo += overlap.max(0.0);
             }
-            let pair = (self.boxes[i].id.min(self.boxes[j].id), self.boxes[i].id.max(self.boxes[j].id));
+            let pair = (
+                self.boxes[i].id.min(self.boxes[j].id),
+                self.boxes[i].id.max(self.boxes[j].id),
+            );
             if overlap > 1e-9 && !self.contacts.contains(&pair) {
                 damage.push(Damage {
                     t,
@@ -525,7 +601,11 @@ impl SortingLine {
             return;
         }
         let large = rng.random_bool(self.config.large_share.clamp(0.0, 1.0));
-        let len = if large { self.config.large_len } else { self.config.small_len };
+        let len = if large {
+            self.config.large_len
+        } else {
+            self.config.small_len
+        };
         let head_free = self
             .boxes
             .iter()
@@ -534,7 +614,13 @@ impl SortingLine {
         if head_free {
             self.waiting -= 1;
             self.arrived += 1;
-            self.boxes.push(Carton { id: self.next_id, len, large, frame: Frame::Loading, lo: 0.0 });
+            self.boxes.push(Carton {
+                id: self.next_id,
+                len,
+                large,
+                frame: Frame::Loading,
+                lo: 0.0,
+            });
             self.next_id += 1;
         }
     }
@@ -593,13 +679,18 @@ impl Physics for SortingLine {
             other => Err(format!("the turntable has no position sensed by {other}")),
         };
         self.block = Some(match template {
-            FaultTemplate::BlockedAt { element, at } if element == "P" => Block::At { loading: zone(at)? },
+            FaultTemplate::BlockedAt { element, at } if element == "P" => {
+                Block::At { loading: zone(at)? }
+            }
             FaultTemplate::BlockedBetween { element, from, to } if element == "P" => {
                 let (from, to) = (zone(from)?, zone(to)?);
                 if from == to {
                     return Err(format!("{template}: the two positions must differ"));
                 }
-                Block::Between { dir: if from { 1.0 } else { -1.0 }, frozen: false }
+                Block::Between {
+                    dir: if from { 1.0 } else { -1.0 },
+                    frozen: false,
+                }
             }
             other => return Err(format!("the sorting line cannot simulate {other}")),
         });
@@ -645,7 +736,15 @@ pub struct SynthesisedControl {
 impl SynthesisedControl {
     /// The control law for a plant with the sorting line's signals.
     pub fn new(ids: SortingIds) -> Self {
-        SynthesisedControl { ids, prev: [false; 11], first: true, two_p: false, p36: false, p67: false, pc: true }
+        SynthesisedControl {
+            ids,
+            prev: [false; 11],
+            first: true,
+            two_p: false,
+            p36: false,
+            p67: false,
+            pc: true,
+        }
     }
 }
 

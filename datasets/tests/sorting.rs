@@ -22,14 +22,23 @@ fn simulate<C: Controller>(
         .collect();
     let mut line = SortingLine::new(SortingConfig::default());
     let mut ctl = control(line.ids());
-    let cfg = SimConfig { duration, scan_period: 10 * MS, seed, faults };
+    let cfg = SimConfig {
+        duration,
+        scan_period: 10 * MS,
+        seed,
+        faults,
+    };
     let mut sink = MemorySink::default();
     let report = run(&mut line, &mut ctl, &cfg, &mut sink, |_| {}).expect("in-memory run");
     (report, sink)
 }
 
 fn counter(report: &SimReport, name: &str) -> u64 {
-    report.counters.iter().find(|(n, _)| n == name).map_or(0, |(_, v)| *v)
+    report
+        .counters
+        .iter()
+        .find(|(n, _)| n == name)
+        .map_or(0, |(_, v)| *v)
 }
 
 fn events_of<'a>(sink: &'a MemorySink, name: &str) -> impl Iterator<Item = &'a Event> {
@@ -41,7 +50,10 @@ fn events_of<'a>(sink: &'a MemorySink, name: &str) -> impl Iterator<Item = &'a E
 fn eight_hours_of_default_control_cause_no_damage_and_sort_both_ways() {
     let (report, _) = simulate(8 * 3600 * SECOND, 7, &[], SynthesisedControl::new);
     assert_eq!(report.damage, vec![], "damage under the default control");
-    let (left, right) = (counter(&report, "delivered_left"), counter(&report, "delivered_right"));
+    let (left, right) = (
+        counter(&report, "delivered_left"),
+        counter(&report, "delivered_right"),
+    );
     assert!(left > 1000 && right > 1000, "left {left}, right {right}");
     // Alternating sides: the two counts differ by at most one box.
     assert!(left.abs_diff(right) <= 1, "left {left}, right {right}");
@@ -73,10 +85,18 @@ fn turntable_timing_follows_the_seed() {
         let Some((rising, t0)) = order else { continue };
         let dt = (e.t - t0) / MS;
         match (rising, e.signal == c4, e.signal == c5, e.value) {
-            (true, true, _, false) => assert!((30..=130).contains(&dt), "FE(C4) {dt} ms after RE(A4)"),
-            (true, _, true, true) => assert!((2900..=2950).contains(&dt), "RE(C5) {dt} ms after RE(A4)"),
-            (false, _, true, false) => assert!((1..=150).contains(&dt), "FE(C5) {dt} ms after FE(A4)"),
-            (false, true, _, true) => assert!((2880..=2970).contains(&dt), "RE(C4) {dt} ms after FE(A4)"),
+            (true, true, _, false) => {
+                assert!((30..=130).contains(&dt), "FE(C4) {dt} ms after RE(A4)")
+            }
+            (true, _, true, true) => {
+                assert!((2900..=2950).contains(&dt), "RE(C5) {dt} ms after RE(A4)")
+            }
+            (false, _, true, false) => {
+                assert!((1..=150).contains(&dt), "FE(C5) {dt} ms after FE(A4)")
+            }
+            (false, true, _, true) => {
+                assert!((2880..=2970).contains(&dt), "RE(C4) {dt} ms after FE(A4)")
+            }
             _ => continue,
         }
         checked += 1;
@@ -99,7 +119,9 @@ impl Controller for RollersInTransit {
 
 #[test]
 fn damage_monitor_fires_when_rollers_run_during_rotation() {
-    let (report, _) = simulate(120 * SECOND, 7, &[], |ids| RollersInTransit(SynthesisedControl::new(ids), ids));
+    let (report, _) = simulate(120 * SECOND, 7, &[], |ids| {
+        RollersInTransit(SynthesisedControl::new(ids), ids)
+    });
     let first = report.damage.first().expect("damage recorded");
     assert_eq!(first.cause, "rollers_in_transit");
     assert!(first.t > 0);
@@ -119,9 +141,14 @@ impl Controller for EarlyRelease {
 
 #[test]
 fn damage_monitor_fires_when_the_turntable_turns_with_a_box_half_on_it() {
-    let (report, _) = simulate(300 * SECOND, 7, &[], |ids| EarlyRelease(SynthesisedControl::new(ids), ids));
+    let (report, _) = simulate(300 * SECOND, 7, &[], |ids| {
+        EarlyRelease(SynthesisedControl::new(ids), ids)
+    });
     assert!(
-        report.damage.iter().any(|d| d.cause == "rotation_with_box_straddling"),
+        report
+            .damage
+            .iter()
+            .any(|d| d.cause == "rotation_with_box_straddling"),
         "{:?}",
         report.damage
     );
@@ -140,7 +167,9 @@ impl Controller for AlwaysFeed {
 
 #[test]
 fn damage_monitor_sees_falls_and_collisions() {
-    let (report, _) = simulate(600 * SECOND, 7, &[], |ids| AlwaysFeed(SynthesisedControl::new(ids), ids));
+    let (report, _) = simulate(600 * SECOND, 7, &[], |ids| {
+        AlwaysFeed(SynthesisedControl::new(ids), ids)
+    });
     let causes: Vec<&str> = report.damage.iter().map(|d| d.cause).collect();
     assert!(causes.contains(&"fell_off_end"), "{causes:?}");
 }
@@ -149,17 +178,32 @@ fn damage_monitor_sees_falls_and_collisions() {
 /// position in the normal run of `seed`: faults injected then start from a known state.
 fn quiet_onset(seed: u64, after: Time) -> Time {
     let (_, normal) = simulate(after + 120 * SECOND, seed, &[], SynthesisedControl::new);
-    let back = events_of(&normal, "C4").find(|e| e.value && e.t >= after).expect("the turntable returns");
+    let back = events_of(&normal, "C4")
+        .find(|e| e.value && e.t >= after)
+        .expect("the turntable returns");
     back.t + 100 * MS
 }
 
 #[test]
 fn f2_keeps_c4_at_one_while_the_turntable_still_reaches_c5() {
     let onset = quiet_onset(7, 600 * SECOND);
-    let (_, sink) = simulate(900 * SECOND, 7, &[&format!("F2@{}ms", onset / MS)], SynthesisedControl::new);
-    let rise = events_of(&sink, "A4").find(|e| e.value && e.t >= onset).expect("a rotation after onset");
-    assert_eq!(events_of(&sink, "C4").filter(|e| e.t >= onset).count(), 0, "C4 changed after onset");
-    let c5 = events_of(&sink, "C5").find(|e| e.value && e.t > rise.t).expect("C5 rises");
+    let (_, sink) = simulate(
+        900 * SECOND,
+        7,
+        &[&format!("F2@{}ms", onset / MS)],
+        SynthesisedControl::new,
+    );
+    let rise = events_of(&sink, "A4")
+        .find(|e| e.value && e.t >= onset)
+        .expect("a rotation after onset");
+    assert_eq!(
+        events_of(&sink, "C4").filter(|e| e.t >= onset).count(),
+        0,
+        "C4 changed after onset"
+    );
+    let c5 = events_of(&sink, "C5")
+        .find(|e| e.value && e.t > rise.t)
+        .expect("C5 rises");
     let dt = (c5.t - rise.t) / MS;
     assert!((2900..=2950).contains(&dt), "RE(C5) {dt} ms after RE(A4)");
 }
@@ -168,11 +212,31 @@ fn f2_keeps_c4_at_one_while_the_turntable_still_reaches_c5() {
 fn every_turntable_fault_changes_the_log_after_its_onset_only() {
     let onset = 300 * SECOND;
     let (_, normal) = simulate(600 * SECOND, 5, &[], SynthesisedControl::new);
-    for label in ["F1", "F2", "F3", "F4", "F5", "F6", "F7", "F8", "F9", "F10", "F11", "F12"] {
-        let (_, faulty) = simulate(600 * SECOND, 5, &[&format!("{label}@300s")], SynthesisedControl::new);
-        let before = |s: &MemorySink| s.events.iter().filter(|e| e.t < onset).copied().collect::<Vec<_>>();
-        assert_eq!(before(&normal), before(&faulty), "{label} changed the log before its onset");
-        assert_ne!(normal.events, faulty.events, "{label} left no trace in the log");
+    for label in [
+        "F1", "F2", "F3", "F4", "F5", "F6", "F7", "F8", "F9", "F10", "F11", "F12",
+    ] {
+        let (_, faulty) = simulate(
+            600 * SECOND,
+            5,
+            &[&format!("{label}@300s")],
+            SynthesisedControl::new,
+        );
+        let before = |s: &MemorySink| {
+            s.events
+                .iter()
+                .filter(|e| e.t < onset)
+                .copied()
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            before(&normal),
+            before(&faulty),
+            "{label} changed the log before its onset"
+        );
+        assert_ne!(
+            normal.events, faulty.events,
+            "{label} left no trace in the log"
+        );
     }
 }
 
@@ -191,7 +255,10 @@ fn blocked_turntable_faults_freeze_the_position_sensors() {
 fn unknown_faults_are_refused_with_the_known_labels() {
     let spec: FaultSpec = "F13@10s".parse().expect("well-formed");
     let err = Injection::resolve(&spec, &plant()).expect_err("F13 does not exist");
-    assert!(err.contains("unknown fault 'F13'") && err.contains("F1"), "{err}");
+    assert!(
+        err.contains("unknown fault 'F13'") && err.contains("F1"),
+        "{err}"
+    );
     assert!("F2@soon".parse::<FaultSpec>().is_err());
     let spec: FaultSpec = "stuck1(C44)@1s".parse().expect("well-formed");
     assert!(Injection::resolve(&spec, &plant()).is_err());

@@ -34,7 +34,10 @@ fn bad_plant_files_fail_with_the_expected_message() {
     let update = std::env::var_os("UPDATE_EXPECT").is_some();
     let mut checked = 0;
     for path in fixtures() {
-        let stem = path.file_stem().and_then(|s| s.to_str()).expect("utf-8 name");
+        let stem = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .expect("utf-8 name");
         if stem.starts_with("good") {
             continue;
         }
@@ -44,7 +47,8 @@ fn bad_plant_files_fail_with_the_expected_message() {
         if update {
             fs::write(&expected_path, format!("{err}\n")).expect("writes .err");
         }
-        let expected = fs::read_to_string(&expected_path).unwrap_or_else(|_| panic!("{stem}.err missing"));
+        let expected =
+            fs::read_to_string(&expected_path).unwrap_or_else(|_| panic!("{stem}.err missing"));
         assert_eq!(err, expected.trim_end(), "{stem}");
         checked += 1;
     }
@@ -53,8 +57,10 @@ fn bad_plant_files_fail_with_the_expected_message() {
 
 #[test]
 fn the_spec_form_is_accepted_as_written() {
-    let plant = parse(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_spec_example.toml"))
-        .expect("SPEC §3 form parses");
+    let plant = parse(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_spec_example.toml"),
+    )
+    .expect("SPEC §3 form parses");
     assert_eq!(plant.name, "sorting");
     assert_eq!(plant.scan_period, 10 * diagnoser::MS);
     assert_eq!(plant.time_unit, TimeUnit::Ms);
@@ -63,10 +69,20 @@ fn the_spec_form_is_accepted_as_written() {
     assert_eq!(turntable.sensors.len(), 2);
     assert_eq!(
         plant.fault("F11").map(|f| &f.template),
-        Some(&FaultTemplate::BlockedBetween { element: "P".into(), from: "C4".into(), to: "C5".into() })
+        Some(&FaultTemplate::BlockedBetween {
+            element: "P".into(),
+            from: "C4".into(),
+            to: "C5".into()
+        })
     );
-    assert_eq!(plant.partition_of("F5").map(|p| p.flag()), Some("def_P".to_string()));
-    assert!(matches!(plant.observers[0].rule, ObserverRule::SetReset { .. }));
+    assert_eq!(
+        plant.partition_of("F5").map(|p| p.flag()),
+        Some("def_P".to_string())
+    );
+    assert!(matches!(
+        plant.observers[0].rule,
+        ObserverRule::SetReset { .. }
+    ));
     let csc1 = &plant.constraints[1];
     assert_eq!(csc1.priority.map(|id| plant.signals.name(id)), Some("A1"));
     assert_eq!(csc1.expr.to_string(), "C0 & A0 & !A1");
@@ -75,9 +91,11 @@ fn the_spec_form_is_accepted_as_written() {
 
 #[test]
 fn without_faults_every_template_is_generated() {
-    let plant =
-        parse(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_default_faults.toml"))
-            .expect("parses");
+    let plant = parse(
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/plants/good_default_faults.toml"),
+    )
+    .expect("parses");
     let labels: Vec<&str> = plant.faults.iter().map(|f| f.label.as_str()).collect();
     for want in [
         "C4.stuck0",
@@ -95,6 +113,10 @@ fn without_faults_every_template_is_generated() {
     let names: Vec<&str> = plant.partitions.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(names, ["C4", "C5", "P"]);
     // Actuator faults join the part's element.
-    assert!(plant.partition_of("A4.actuator_stuck0").is_some_and(|p| p.name == "P"));
+    assert!(
+        plant
+            .partition_of("A4.actuator_stuck0")
+            .is_some_and(|p| p.name == "P")
+    );
     assert_eq!(plant.signals.of_kind(SignalKind::Sensor).count(), 2);
 }
