@@ -78,6 +78,12 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
             args.duration as f64 / 1e9
         )));
     }
+    if args.out.exists() && !args.out.is_dir() {
+        return Err(Failure::BadInput(format!(
+            "--out {} exists and is not a directory",
+            args.out.display()
+        )));
+    }
     let config = SimConfig {
         duration: args.duration,
         scan_period,

@@ -24,9 +24,9 @@
 //!   extension: the default timings bring a returning rod back behind the half-way
 //!   point before its neighbour reaches it;
 //! - the reading of seed 001 figure 3: see [`ConstraintControl`];
-//! - the seed names no priorities for its combined constraints; ours, and the
-//!   trade-off of the one for CSc4 (Q9 over Q12, unsafe with fewer than three
-//!   objects), are explained in `plants/cylinders.toml`.
+//! - the seed names no priorities for its combined constraints; ours (always the
+//!   upstream cylinder, the one delivering into the other's corner) are explained
+//!   in `plants/cylinders.toml`.
 //!
 //! Damage: `rod_collision` when an object pushed to within reach of the next
 //! corner meets that corner's rod out (further than 0.05), or when two adjacent
@@ -453,6 +453,10 @@ impl CylinderRig {
 impl Physics for CylinderRig {
     fn plant(&self) -> &Plant {
         &self.plant
+    }
+
+    fn plant_toml(&self) -> &'static str {
+        PLANT_TOML
     }
 
     fn advance(&mut self, t: Time, act: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>) {

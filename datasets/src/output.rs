@@ -152,10 +152,8 @@ pub fn write_run<P: Physics, C: Controller>(
             "counters": counters,
         });
         write_json(&staging.join("damage.json"), &summary)?;
-        fs::write(
-            staging.join("plant.toml"),
-            plant_file(&plant, config.scan_period),
-        )?;
+        let plant_toml = with_scan_period(physics.plant_toml(), config.scan_period);
+        fs::write(staging.join("plant.toml"), plant_toml)?;
 
         let mut names = vec![
             "events.csv",
@@ -184,12 +182,8 @@ fn write_json(path: &Path, value: &serde_json::Value) -> io::Result<()> {
     f.into_inner().map_err(|e| e.into_error())?.sync_all()
 }
 
-/// The shipped plant file of `plant`, with the run's scan period.
-fn plant_file(plant: &Plant, scan_period: Time) -> String {
-    let source = match plant.name.as_str() {
-        "cylinders" => crate::cylinders::PLANT_TOML,
-        _ => crate::sorting::PLANT_TOML,
-    };
+/// A plant file's text with the run's scan period.
+fn with_scan_period(source: &str, scan_period: Time) -> String {
     let ms = diagnoser::TimeUnit::Ms.format(scan_period);
     source
         .lines()

@@ -24,6 +24,9 @@ pub trait Physics {
     /// The plant file describing this plant's signals, parts and faults.
     fn plant(&self) -> &Plant;
 
+    /// The text of that plant file, comments included, as written beside a run.
+    fn plant_toml(&self) -> &'static str;
+
     /// Advances the plant to time `t`, with the actuators physically at `actuators`
     /// (indexed like the plant's signals; sensor entries are meaningless) since the
     /// previous call. Physical harm is appended to `damage`.

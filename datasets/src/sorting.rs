@@ -631,6 +631,10 @@ impl Physics for SortingLine {
         &self.plant
     }
 
+    fn plant_toml(&self) -> &'static str {
+        PLANT_TOML
+    }
+
     fn advance(&mut self, t: Time, act: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>) {
         let Some(last) = self.last_t.replace(t) else {
             return;
