@@ -45,6 +45,21 @@ pub struct Plant {
     pub constraints: Vec<Constraint>,
     /// Functional constraints (seed 001).
     pub functional: Vec<Constraint>,
+    /// Where each signal sits in the CAN process image (for `candump` logs).
+    pub can: Vec<CanBit>,
+}
+
+/// One signal's place in a CANopen (CiA 401) process image: bit `bit` of the
+/// payload of frames with identifier `cob_id`, bit 0 being the least significant
+/// bit of data byte 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CanBit {
+    /// The signal carried.
+    pub signal: SignalId,
+    /// CAN identifier of the PDO (e.g. `0x181`, TPDO1 of node 1).
+    pub cob_id: u32,
+    /// Bit index in the payload, from 0 (byte 0, LSB) to 63.
+    pub bit: u8,
 }
 
 /// A part of the plant (PoP): some actuators, the sensors that follow them and
@@ -212,6 +227,15 @@ struct RawPlant {
     constraints: Vec<RawConstraint>,
     #[serde(default)]
     functional: Vec<RawConstraint>,
+    #[serde(default, deserialize_with = "ordered")]
+    can: Vec<(Spanned<String>, Spanned<RawCanBit>)>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCanBit {
+    cob_id: u32,
+    bit: u8,
 }
 
 /// A partition name and its fault labels, as written.
@@ -525,6 +549,37 @@ impl Checker<'_> {
         let constraints = self.constraints(raw.constraints, "constraints", &known, &signals)?;
         let functional = self.constraints(raw.functional, "functional", &known, &signals)?;
 
+        let mut can = Vec::new();
+        for (name, bit) in raw.can {
+            let id = signals.id(name.get_ref()).ok_or_else(|| {
+                self.at(
+                    name.span(),
+                    "can",
+                    format!("unknown signal '{}'", name.get_ref()),
+                )
+            })?;
+            let b = bit.get_ref();
+            if b.bit > 63 || b.cob_id > 0x1FFF_FFFF {
+                return Err(self.at(
+                    bit.span(),
+                    "can",
+                    "bit must be 0-63 and cob_id a CAN identifier (at most 29 bits)",
+                ));
+            }
+            if can.iter().any(|c: &CanBit| c.signal == id) {
+                return Err(self.at(
+                    name.span(),
+                    "can",
+                    format!("signal '{}' mapped twice", name.get_ref()),
+                ));
+            }
+            can.push(CanBit {
+                signal: id,
+                cob_id: b.cob_id,
+                bit: b.bit,
+            });
+        }
+
         Ok(Plant {
             name: raw.name,
             scan_period,
@@ -537,6 +592,7 @@ impl Checker<'_> {
             observers,
             constraints,
             functional,
+            can,
         })
     }
 

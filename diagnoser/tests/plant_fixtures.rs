@@ -87,6 +87,9 @@ fn the_spec_form_is_accepted_as_written() {
     assert_eq!(csc1.priority.map(|id| plant.signals.name(id)), Some("A1"));
     assert_eq!(csc1.expr.to_string(), "C0 & A0 & !A1");
     assert_eq!(plant.functional[0].name, "CFs1");
+    assert_eq!(plant.can.len(), 3);
+    assert_eq!((plant.can[1].cob_id, plant.can[1].bit), (0x181, 1));
+    assert_eq!(plant.signals.name(plant.can[2].signal), "A4");
 }
 
 #[test]
