@@ -13,6 +13,7 @@ pub mod error;
 pub mod expr;
 pub mod fault;
 pub mod log;
+pub mod model;
 pub mod plant;
 pub mod signal;
 pub mod time;

@@ -1,10 +1,19 @@
-//! Learning of timed part models from PLC logs.
+//! Log ingestion and learning of timed part models.
 //!
-//! This crate is where log ingestion at scale (CSV, Parquet, candump, VCD) and the
-//! learning of one timed model per plant part will live. It depends on
-//! [`diagnoser`] for the core types and never the other way round.
+//! [`ingest`] turns PLC logs of any supported form (events, intervals or scans as
+//! CSV or Parquet, `candump -L`, VCD) into one stream of time-ordered events,
+//! batch by batch, so that memory does not grow with the log. The learner turns
+//! such streams into one timed model per plant part: states, transitions, interval
+//! guards measured on the part's command clock, and the temporal estimate of each
+//! sensor that the filter coupling substitutes for a failed sensor.
 //!
-//! It is not for: running diagnosers, the filter, or simulating plants.
+//! It depends on [`diagnoser`] for the core types and never the other way round.
+//! polars is used here, and only here, for columnar ingestion.
 //!
-//! Status: the crate is reserved in the workspace; its contents arrive with the
-//! learning work (see `ARCHITECTURE.md`).
+//! It is not for: running diagnosers on-line, evaluating the filter, or simulating.
+
+pub mod check;
+pub mod dot;
+pub mod ingest;
+pub mod learn;
+pub mod suggest;

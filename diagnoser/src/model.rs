@@ -1,0 +1,210 @@
+//! Timed models of plant parts, as learned from logs (`model.json`).
+//!
+//! A part's model is an automaton over the observed vectors of the part's signals
+//! (its *states*), whose *transitions* are the observed events (one or several
+//! edges in one scan), each with an interval *guard* measured on a *clock*: by
+//! default the part's command clock (time since the last edge of one of its
+//! actuators), or the time since another edge of the part when that gives a much
+//! tighter interval. The model also carries each sensor's *temporal estimate*: its
+//! value as a function of the command clock and of the actuators' state.
+//!
+//! All times in a model are in its `time_unit`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::TimeUnit;
+
+/// Version of the `model.json` schema written by this build.
+pub const MODEL_VERSION: u32 = 1;
+
+/// A learned model of every part of a plant.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Model {
+    /// Schema version ([`MODEL_VERSION`]).
+    pub version: u32,
+    /// Plant name.
+    pub plant: String,
+    /// Unit of every time in this model.
+    pub time_unit: TimeUnit,
+    /// PLC scan period, in `time_unit`.
+    pub scan_period: f64,
+    /// What it was learned from.
+    pub learned_from: Provenance,
+    /// The settings that widened the guards.
+    pub settings: LearnSettings,
+    /// One model per part.
+    pub parts: Vec<PartModel>,
+}
+
+/// The logs a model was learned from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Provenance {
+    /// Log files, as given.
+    pub logs: Vec<String>,
+    /// Events read.
+    pub events: u64,
+    /// Total logged time, in `time_unit`.
+    pub duration: f64,
+}
+
+/// How learned intervals were turned into guards.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LearnSettings {
+    /// Absolute widening on each side, in `time_unit`.
+    pub margin: f64,
+    /// Relative widening on each side, as a fraction of the learned width.
+    pub margin_relative: f64,
+    /// Share of samples trimmed on each side before widening (outliers).
+    pub trim: f64,
+}
+
+/// The model of one part.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartModel {
+    /// Part name, from the plant file.
+    pub name: String,
+    /// The part's signals, actuators first: the order of every state vector.
+    pub signals: Vec<String>,
+    /// How many of `signals` are actuators.
+    pub actuators: usize,
+    /// Observed states.
+    pub states: Vec<StateModel>,
+    /// Observed transitions.
+    pub transitions: Vec<TransitionModel>,
+    /// The partition of the command clock into intervals `I1`, `I2`, … per actuator
+    /// state, and each sensor's value in them.
+    pub estimates: Vec<Estimate>,
+    /// Each estimable sensor's estimate over all actuator states, in the form of
+    /// seed 002: e.g. `Ĉ4 = I1 | I2 | I9 | I10`.
+    pub sensor_estimates: Vec<SensorEstimate>,
+    /// What could not be timed, and why.
+    pub untimed: Vec<String>,
+}
+
+/// A state: one observed vector of the part's signals.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StateModel {
+    /// Index in `states`.
+    pub id: usize,
+    /// Values of the part's signals, in `PartModel::signals` order.
+    pub values: Vec<bool>,
+    /// Times the state was entered.
+    pub visits: u64,
+    /// True when the part waits here for a command: every transition out of it
+    /// starts with an actuator edge.
+    pub stable: bool,
+    /// Sensor events expected here, each by a deadline on its clock.
+    pub expected: Vec<Expectation>,
+}
+
+/// A sensor event expected in a state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Expectation {
+    /// Index of the transition.
+    pub transition: usize,
+    /// The event, e.g. `FE(C4)`.
+    pub event: String,
+    /// Clock the deadline is measured on (see [`TransitionModel::clock`]).
+    pub clock: String,
+    /// Latest time on that clock (the guard's upper bound).
+    pub by: f64,
+}
+
+/// A transition between two states.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TransitionModel {
+    /// Index in `transitions`.
+    pub id: usize,
+    /// Source state.
+    pub from: usize,
+    /// Target state.
+    pub to: usize,
+    /// The edges of the scan, e.g. `RE(A4)` or `FE(C4) RE(C5)`.
+    pub event: String,
+    /// Whether the event includes an actuator edge (a command).
+    pub command: bool,
+    /// Occurrences.
+    pub count: u64,
+    /// Clock of the guard: `command` (time since the part's last actuator edge) or
+    /// an edge such as `FE(C1)` (time since its last occurrence).
+    pub clock: String,
+    /// The interval guard.
+    pub guard: Guard,
+    /// The same statistics on the command clock, when `clock` is another edge.
+    pub command_guard: Option<Guard>,
+    /// False when even the best clock leaves the timing spread wide (it follows
+    /// the product flow, not a command): the guard is then informative only.
+    pub timed: bool,
+}
+
+/// Learned timing of a transition, and the widened interval actually used.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Guard {
+    /// Samples.
+    pub n: u64,
+    /// Smallest sample.
+    pub min: f64,
+    /// 1 % quantile.
+    pub q01: f64,
+    /// Median.
+    pub q50: f64,
+    /// 99 % quantile.
+    pub q99: f64,
+    /// Largest sample.
+    pub max: f64,
+    /// Lower bound of the guard used (after trimming and widening).
+    pub lo: f64,
+    /// Upper bound of the guard used.
+    pub hi: f64,
+}
+
+impl Guard {
+    /// Whether a clock reading satisfies the guard used.
+    pub fn admits(&self, clock: f64) -> bool {
+        self.lo <= clock && clock <= self.hi
+    }
+}
+
+/// The temporal estimates of a part's sensors after one actuator state is
+/// commanded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    /// The actuators' values after the command, e.g. `A4=1`.
+    pub actuators: String,
+    /// Intervals of the command clock, in order, partitioning `[0, ∞)`.
+    pub intervals: Vec<ClockInterval>,
+    /// For each sensor that could be estimated, its value in each interval.
+    pub sensors: Vec<SensorSchedule>,
+}
+
+/// A named interval of the command clock, `[from, to[` (`to` = `None`: unbounded).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClockInterval {
+    /// Name, `I1`, `I2`, … numbered across the part's estimates.
+    pub name: String,
+    /// Start, included.
+    pub from: f64,
+    /// End, excluded; `None` for the last interval.
+    pub to: Option<f64>,
+}
+
+/// A sensor's estimated value over the intervals of an [`Estimate`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SensorSchedule {
+    /// Sensor name.
+    pub sensor: String,
+    /// One value per interval: `"1"`, `"0"` or `"uncertain"` (the edge may
+    /// already have happened).
+    pub values: Vec<String>,
+}
+
+/// A sensor's temporal estimate as a disjunction of clock intervals.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SensorEstimate {
+    /// Sensor name.
+    pub sensor: String,
+    /// Intervals where the sensor is 1 or may already be 1, e.g. `I1 | I2 | I9 | I10`.
+    pub expr: String,
+    /// Of those, the ones where its edge may or may not have happened yet.
+    pub uncertain: Vec<String>,
+}

@@ -1,0 +1,250 @@
+//! Replaying a log against a learned model: every transition must be one the
+//! model knows, within its guard, and every expected sensor event must come by its
+//! deadline.
+//!
+//! This is the acceptance test of a model (a model learned on normal runs must
+//! accept other normal runs) and a first, part-local fault detector.
+
+use std::collections::HashMap;
+
+use diagnoser::model::{Model, PartModel};
+use diagnoser::{Event, Located, Plant, Time};
+
+use crate::ingest::LogStream;
+
+/// A deviation from the model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Violation {
+    /// When it was detected (for a missed deadline: the deadline itself).
+    pub t: Time,
+    /// The part.
+    pub part: String,
+    /// What happened, in one sentence.
+    pub message: String,
+}
+
+struct PartCheck<'m> {
+    model: &'m PartModel,
+    /// Plant signal index → bit in the part's vector.
+    state: u64,
+    origin: Option<Time>,
+    last_edge: Vec<Option<Time>>,
+    states: HashMap<u64, usize>,
+    trans: HashMap<(u64, u64), usize>,
+    /// Deadline of the current state visit, once reported.
+    reported: bool,
+    entered: Time,
+}
+
+impl<'m> PartCheck<'m> {
+    fn clock_origin(&self, clock: &str) -> Option<Time> {
+        if clock == "command" {
+            return self.origin;
+        }
+        let (edge, name) = clock.strip_suffix(')')?.split_once('(')?;
+        let bit = self.model.signals.iter().position(|s| s == name)?;
+        self.last_edge[2 * bit + usize::from(edge == "RE")]
+    }
+
+    /// The time by which the current state must have been left, if any.
+    fn deadline(&self, scale: f64) -> Option<Time> {
+        let id = *self.states.get(&self.state)?;
+        let st = &self.model.states[id];
+        if st.stable || st.expected.is_empty() {
+            return None;
+        }
+        st.expected
+            .iter()
+            .filter_map(|e| self.clock_origin(&e.clock).map(|o| o + (e.by * scale).round() as Time))
+            .max()
+    }
+
+    fn label(&self, v: u64) -> String {
+        self.model
+            .signals
+            .iter()
+            .enumerate()
+            .map(|(b, n)| format!("{n}={}", v >> b & 1))
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+}
+
+/// Replays `log` against `model` and returns every violation, in time order per part.
+pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violation>, Located> {
+    let scale = model.time_unit.nanos() as f64;
+    let mut parts: Vec<PartCheck> = Vec::new();
+    let mut routes: Vec<Vec<(usize, u8)>> = vec![Vec::new(); plant.signals.len()];
+    for pm in &model.parts {
+        let pi = parts.len();
+        let mut state = 0u64;
+        for (bit, name) in pm.signals.iter().enumerate() {
+            if let Some(id) = plant.signals.id(name) {
+                routes[id.index()].push((pi, bit as u8));
+                if log.initial.get(id.index()).copied().unwrap_or(false) {
+                    state |= 1 << bit;
+                }
+            }
+        }
+        let states = pm
+            .states
+            .iter()
+            .map(|s| (s.values.iter().enumerate().fold(0u64, |v, (b, &x)| v | (u64::from(x) << b)), s.id))
+            .collect::<HashMap<_, _>>();
+        let vec_of = |id: usize| states.iter().find(|&(_, &i)| i == id).map(|(&v, _)| v).unwrap_or(0);
+        let trans = pm.transitions.iter().map(|t| ((vec_of(t.from), vec_of(t.to)), t.id)).collect();
+        parts.push(PartCheck {
+            model: pm,
+            state,
+            origin: None,
+            last_edge: vec![None; 2 * pm.signals.len()],
+            states,
+            trans,
+            reported: false,
+            entered: log.start,
+        });
+    }
+
+    let mut out = Vec::new();
+    let mut scan: Option<Time> = None;
+    let mut touched: Vec<(usize, u64)> = Vec::new();
+    let mut last_t = log.start;
+    for batch in log.batches {
+        for Event { t, signal, value } in batch? {
+            if scan != Some(t) {
+                if let Some(s) = scan {
+                    step(&mut parts, s, &mut touched, scale, &mut out);
+                }
+                scan = Some(t);
+            }
+            for &(p, bit) in routes.get(signal.index()).map_or(&[][..], Vec::as_slice) {
+                let mask = 1u64 << bit;
+                let cur = match touched.iter().find(|(q, _)| *q == p) {
+                    Some((_, m)) => (parts[p].state ^ m) & mask != 0,
+                    None => parts[p].state & mask != 0,
+                };
+                if cur != value {
+                    match touched.iter_mut().find(|(q, _)| *q == p) {
+                        Some((_, m)) => *m ^= mask,
+                        None => touched.push((p, mask)),
+                    }
+                }
+            }
+            last_t = t;
+        }
+    }
+    if let Some(s) = scan {
+        step(&mut parts, s, &mut touched, scale, &mut out);
+    }
+    for pc in &mut parts {
+        missed(pc, last_t, scale, &mut out);
+    }
+    out.sort_by_key(|v| v.t);
+    Ok(out)
+}
+
+/// Reports a missed deadline of the current state if `now` is past it.
+fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
+    if pc.reported {
+        return;
+    }
+    let Some(deadline) = pc.deadline(scale) else { return };
+    if now > deadline {
+        pc.reported = true;
+        let st = &pc.model.states[pc.states[&pc.state]];
+        let expected: Vec<String> = st
+            .expected
+            .iter()
+            .map(|e| {
+                let g = &pc.model.transitions[e.transition].guard;
+                format!("{} within [{}, {}] after {}", e.event, g.lo, g.hi, if e.clock == "command" { "the last command".to_string() } else { e.clock.clone() })
+            })
+            .collect();
+        out.push(Violation {
+            // A state entered after its deadline (clocks that other edges reset)
+            // is late from the moment it is entered.
+            t: deadline.max(pc.entered),
+            part: pc.model.name.clone(),
+            message: format!("in state {}: no {}", pc.label(pc.state), expected.join(", nor ")),
+        });
+    }
+}
+
+fn step(parts: &mut [PartCheck], t: Time, touched: &mut Vec<(usize, u64)>, scale: f64, out: &mut Vec<Violation>) {
+    for pc in parts.iter_mut() {
+        missed(pc, t, scale, out);
+    }
+    for (p, changed) in touched.drain(..) {
+        if changed == 0 {
+            continue;
+        }
+        let pc = &mut parts[p];
+        let from = pc.state;
+        let to = from ^ changed;
+        match pc.trans.get(&(from, to)).map(|&i| &pc.model.transitions[i]) {
+            // Independent edges that happened to fall in one scan: accepted when
+            // they split into a sequence of known transitions.
+            None if decomposes(&pc.trans, from, changed) => {}
+            None => out.push(Violation {
+                t,
+                part: pc.model.name.clone(),
+                message: format!("unexpected change from {} to {}", pc.label(from), pc.label(to)),
+            }),
+            Some(tr) if tr.timed => {
+                if let Some(o) = pc.clock_origin(&tr.clock) {
+                    let clock = (t - o) as f64 / scale;
+                    if !tr.guard.admits(clock) {
+                        out.push(Violation {
+                            t,
+                            part: pc.model.name.clone(),
+                            message: format!(
+                                "{} at {clock} after {}, outside its guard [{}, {}]",
+                                tr.event,
+                                if tr.clock == "command" { "the last command" } else { &tr.clock },
+                                tr.guard.lo,
+                                tr.guard.hi
+                            ),
+                        });
+                    }
+                }
+            }
+            Some(_) => {}
+        }
+        for (bit, _) in pc.model.signals.iter().enumerate() {
+            if changed >> bit & 1 == 1 {
+                pc.last_edge[2 * bit + usize::from(to >> bit & 1 == 1)] = Some(t);
+            }
+        }
+        let act_mask = if pc.model.actuators >= 64 { u64::MAX } else { (1u64 << pc.model.actuators) - 1 };
+        if changed & act_mask != 0 {
+            pc.origin = Some(t);
+        }
+        pc.state = to;
+        pc.reported = false;
+        pc.entered = t;
+    }
+}
+
+/// Whether the edges `changed` from state `from` split into a sequence of known
+/// transitions (groups of edges, in some order). Parts have few signals, so the
+/// search over subsets stays small.
+fn decomposes(trans: &HashMap<(u64, u64), usize>, from: u64, changed: u64) -> bool {
+    if changed.count_ones() < 2 || changed.count_ones() > 8 {
+        return false;
+    }
+    fn search(trans: &HashMap<(u64, u64), usize>, from: u64, rest: u64) -> bool {
+        if rest == 0 {
+            return true;
+        }
+        // Enumerate the non-empty subsets of `rest`.
+        let mut sub = rest;
+        while sub != 0 {
+            if trans.contains_key(&(from, from ^ sub)) && search(trans, from ^ sub, rest ^ sub) {
+                return true;
+            }
+            sub = (sub - 1) & rest;
+        }
+        false
+    }
+    search(trans, from, changed)
+}

@@ -1,0 +1,747 @@
+//! The learning pass: one streaming pass over logs builds, for every part, its
+//! states, transitions, guard statistics and sensor estimates.
+//!
+//! Memory holds per-part statistics only (states, transitions, one histogram per
+//! transition and clock), never the events themselves, so it does not grow with
+//! the length of the logs.
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+use diagnoser::model::{
+    ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, PartModel,
+    Provenance, SensorEstimate, SensorSchedule, StateModel, TransitionModel,
+};
+use diagnoser::{Event, Located, Plant, SignalKind, Time};
+
+use crate::ingest::LogStream;
+
+/// Settings of learning.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearnOptions {
+    /// Absolute widening of each guard on each side; `None`: one scan period.
+    pub margin: Option<Time>,
+    /// Relative widening of each side, as a fraction of the learned width.
+    pub margin_relative: f64,
+    /// Share of samples dropped on each side before widening (outliers); 0 keeps
+    /// the learned min and max.
+    pub trim: f64,
+    /// Another edge replaces the command clock as a transition's clock when its
+    /// interval is at most this fraction of the command clock's.
+    pub tight_ratio: f64,
+    /// A transition is timed when its best clock's spread (`q99 - q01`) is at
+    /// most this, or at most `timed_relative` of its median; otherwise its timing
+    /// follows something the part does not see (usually the product flow).
+    pub timed_spread: Time,
+    /// See `timed_spread`.
+    pub timed_relative: f64,
+}
+
+impl Default for LearnOptions {
+    fn default() -> Self {
+        LearnOptions {
+            margin: None,
+            margin_relative: 0.0,
+            trim: 0.0,
+            tight_ratio: 0.5,
+            timed_spread: diagnoser::SECOND,
+            timed_relative: 0.2,
+        }
+    }
+}
+
+/// Learns part models from logs, one log after the other.
+pub struct Learner<'p> {
+    plant: &'p Plant,
+    options: LearnOptions,
+    margin: Time,
+    parts: Vec<PartLearner>,
+    /// For each plant signal, the parts it belongs to and its bit there.
+    routes: Vec<Vec<(usize, u8)>>,
+    logs: Vec<String>,
+    events: u64,
+    duration: Time,
+}
+
+impl<'p> Learner<'p> {
+    /// A learner for the parts of `plant`.
+    ///
+    /// # Errors
+    /// A part with more than 64 signals cannot be learned (its state would not
+    /// fit a machine word); the error names it.
+    pub fn new(plant: &'p Plant, options: LearnOptions) -> Result<Self, String> {
+        let mut routes = vec![Vec::new(); plant.signals.len()];
+        let mut parts = Vec::new();
+        for (pi, part) in plant.parts.iter().enumerate() {
+            let ids: Vec<_> = part.actuators.iter().chain(&part.sensors).copied().collect();
+            if ids.len() > 64 {
+                return Err(format!("part '{}' has {} signals; at most 64 can be learned", part.name, ids.len()));
+            }
+            for (bit, id) in ids.iter().enumerate() {
+                routes[id.index()].push((pi, bit as u8));
+            }
+            let names = ids.iter().map(|&id| plant.signals.name(id).to_string()).collect();
+            parts.push(PartLearner::new(part.name.clone(), names, part.actuators.len()));
+        }
+        let margin = options.margin.unwrap_or(plant.scan_period);
+        Ok(Learner { plant, options, margin, parts, routes, logs: Vec::new(), events: 0, duration: 0 })
+    }
+
+    /// Reads one log to its end. `progress` is called after each batch with the
+    /// number of events read so far from this log.
+    pub fn learn_log(&mut self, log: LogStream, mut progress: impl FnMut(u64)) -> Result<(), Located> {
+        self.logs.push(log.path.display().to_string());
+        let initial = log.initial;
+        for (pi, part) in self.parts.iter_mut().enumerate() {
+            let mut state = 0u64;
+            for (sig, routes) in self.routes.iter().enumerate() {
+                for &(p, bit) in routes {
+                    if p == pi && initial.get(sig).copied().unwrap_or(false) {
+                        state |= 1 << bit;
+                    }
+                }
+            }
+            part.start_log(state);
+        }
+        let mut scan: Option<Time> = None;
+        let mut touched: Vec<(usize, u64)> = Vec::new();
+        let mut last_t = log.start;
+        let mut read = 0u64;
+        for batch in log.batches {
+            let batch = batch?;
+            for Event { t, signal, value } in batch {
+                if scan != Some(t) {
+                    if let Some(s) = scan {
+                        self.flush(s, &mut touched);
+                    }
+                    scan = Some(t);
+                }
+                for &(p, bit) in self.routes.get(signal.index()).map_or(&[][..], Vec::as_slice) {
+                    let mask = 1u64 << bit;
+                    match touched.iter_mut().find(|(q, _)| *q == p) {
+                        Some((_, m)) => {
+                            // Set the bit to `value`: toggle only when it differs.
+                            let cur = (self.parts[p].state ^ *m) & mask != 0;
+                            if cur != value {
+                                *m ^= mask;
+                            }
+                        }
+                        None => {
+                            if (self.parts[p].state & mask != 0) != value {
+                                touched.push((p, mask));
+                            }
+                        }
+                    }
+                }
+                last_t = t;
+                read += 1;
+            }
+            progress(read);
+        }
+        if let Some(s) = scan {
+            self.flush(s, &mut touched);
+        }
+        for part in &mut self.parts {
+            part.end_log(last_t);
+        }
+        self.events += read;
+        self.duration += last_t - log.start;
+        Ok(())
+    }
+
+    fn flush(&mut self, t: Time, touched: &mut Vec<(usize, u64)>) {
+        for (p, changed) in touched.drain(..) {
+            if changed != 0 {
+                self.parts[p].transition(t, changed);
+            }
+        }
+    }
+
+    /// Turns the statistics into a model.
+    pub fn finish(self) -> Model {
+        let unit = self.plant.time_unit;
+        let scale = unit.nanos() as f64;
+        let settings = LearnSettings {
+            margin: self.margin as f64 / scale,
+            margin_relative: self.options.margin_relative,
+            trim: self.options.trim,
+        };
+        let parts = self.parts.iter().map(|p| p.model(&self.options, self.margin, scale)).collect();
+        Model {
+            version: MODEL_VERSION,
+            plant: self.plant.name.clone(),
+            time_unit: unit,
+            scan_period: self.plant.scan_period as f64 / scale,
+            learned_from: Provenance { logs: self.logs, events: self.events, duration: self.duration as f64 / scale },
+            settings,
+            parts,
+        }
+    }
+
+    /// Names of the plant's sensors that belong to no part (never learned).
+    pub fn unassigned_sensors(&self) -> Vec<&str> {
+        self.plant
+            .signals
+            .iter()
+            .filter(|(id, s)| s.kind == SignalKind::Sensor && self.routes[id.index()].is_empty())
+            .map(|(_, s)| s.name.as_str())
+            .collect()
+    }
+}
+
+// ----- statistics -----
+
+/// A cheap hasher for small integer keys (durations, state vectors): the learning
+/// pass hashes on every event.
+#[derive(Default)]
+struct IntHasher(u64);
+
+impl Hasher for IntHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(5) ^ u64::from(b)).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+        }
+    }
+    fn write_u64(&mut self, n: u64) {
+        self.0 = (self.0.rotate_left(5) ^ n).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, n: i64) {
+        self.write_u64(n as u64);
+    }
+}
+
+type FastMap<K, V> = HashMap<K, V, BuildHasherDefault<IntHasher>>;
+
+/// Most distinct durations a histogram keeps before it coarsens its bins.
+const MAX_BINS: usize = 4096;
+
+/// A histogram of durations, exact while they take few distinct values (PLC logs
+/// are quantised by the scan period); beyond [`MAX_BINS`] values it merges bins
+/// pairwise, so quantiles stay within one bin width.
+#[derive(Debug, Clone, Default)]
+struct Hist {
+    bins: FastMap<i64, u64>,
+    n: u64,
+    shift: u32,
+}
+
+impl Hist {
+    fn add(&mut self, d: Time) {
+        *self.bins.entry(d >> self.shift).or_insert(0) += 1;
+        self.n += 1;
+        if self.bins.len() > MAX_BINS {
+            self.shift += 1;
+            let old = std::mem::take(&mut self.bins);
+            for (k, c) in old {
+                *self.bins.entry(k >> 1).or_insert(0) += c;
+            }
+        }
+    }
+
+    fn sorted(&self) -> Vec<(i64, u64)> {
+        let mut v: Vec<(i64, u64)> = self.bins.iter().map(|(&k, &c)| (k << self.shift, c)).collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// The smallest sample `x` with at least `p·n` samples at or below it.
+    fn quantile(sorted: &[(i64, u64)], n: u64, p: f64) -> i64 {
+        let want = ((p * n as f64).ceil() as u64).max(1);
+        let mut acc = 0;
+        for &(v, c) in sorted {
+            acc += c;
+            if acc >= want {
+                return v;
+            }
+        }
+        sorted.last().map_or(0, |&(v, _)| v)
+    }
+
+    fn guard(&self, options: &LearnOptions, margin: Time, scale: f64) -> Guard {
+        let s = self.sorted();
+        let n = self.n;
+        let min = s.first().map_or(0, |&(v, _)| v);
+        let max = s.last().map_or(0, |&(v, _)| v + (1 << self.shift) - 1);
+        let q = |p: f64| Hist::quantile(&s, n, p);
+        let (lo, hi) = if options.trim > 0.0 { (q(options.trim), q(1.0 - options.trim)) } else { (min, max) };
+        let widen = margin as f64 + options.margin_relative * (hi - lo) as f64;
+        Guard {
+            n,
+            min: min as f64 / scale,
+            q01: q(0.01) as f64 / scale,
+            q50: q(0.5) as f64 / scale,
+            q99: q(0.99) as f64 / scale,
+            max: max as f64 / scale,
+            lo: ((lo as f64 - widen).max(0.0)) / scale,
+            hi: (hi as f64 + widen) / scale,
+        }
+    }
+
+    fn width(&self) -> i64 {
+        let s = self.sorted();
+        match (s.first(), s.last()) {
+            (Some(a), Some(b)) => b.0 - a.0,
+            _ => i64::MAX,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+struct TransAcc {
+    from: usize,
+    to: usize,
+    changed: u64,
+    to_vec: u64,
+    count: u64,
+    command: Hist,
+    /// One histogram per reference edge (bit · 2 + rising) of the part.
+    refs: Vec<Hist>,
+}
+
+/// Edges of one sensor after one command, up to the next command.
+#[derive(Debug, Clone, Default)]
+struct EstAcc {
+    episodes: u64,
+    v0_ones: u64,
+    /// Episodes by number of edges.
+    counts: FastMap<usize, u64>,
+    /// For the k-th edge (k < 4): min and max time since the command.
+    kth: [(Time, Time, u64); 4],
+    /// Longest episode with exactly c edges (c < 4): was it cut short by the next command?
+    longest_with: [Time; 4],
+}
+
+#[derive(Debug, Clone)]
+struct Episode {
+    act: u64,
+    t0: Time,
+    /// Sensor bits at the end of the command's scan.
+    v0: u64,
+    /// Per sensor bit: edge times since t0 (at most 4 kept) and edge count.
+    edges: Vec<(Vec<Time>, usize)>,
+}
+
+struct PartLearner {
+    name: String,
+    names: Vec<String>,
+    n_act: usize,
+    state: u64,
+    origin: Option<Time>,
+    /// Last time of each edge, indexed bit · 2 + rising.
+    last_edge: Vec<Option<Time>>,
+    state_ids: FastMap<u64, usize>,
+    states: Vec<(u64, u64)>,
+    trans_ids: FastMap<(u64, u64), usize>,
+    trans: Vec<TransAcc>,
+    episode: Option<Episode>,
+    /// Actuator states in order of first command, with their per-sensor statistics.
+    est: Vec<(u64, Vec<EstAcc>)>,
+}
+
+impl PartLearner {
+    fn new(name: String, names: Vec<String>, n_act: usize) -> Self {
+        let n = names.len();
+        PartLearner {
+            name,
+            names,
+            n_act,
+            state: 0,
+            origin: None,
+            last_edge: vec![None; 2 * n],
+            state_ids: FastMap::default(),
+            states: Vec::new(),
+            trans_ids: FastMap::default(),
+            trans: Vec::new(),
+            episode: None,
+            est: Vec::new(),
+        }
+    }
+
+    fn act_mask(&self) -> u64 {
+        if self.n_act >= 64 { u64::MAX } else { (1u64 << self.n_act) - 1 }
+    }
+
+    fn state_id(&mut self, v: u64) -> usize {
+        if let Some(&id) = self.state_ids.get(&v) {
+            return id;
+        }
+        let id = self.states.len();
+        self.states.push((v, 0));
+        self.state_ids.insert(v, id);
+        id
+    }
+
+    fn start_log(&mut self, state: u64) {
+        self.state = state;
+        self.origin = None;
+        self.last_edge.iter_mut().for_each(|e| *e = None);
+        self.episode = None;
+        let id = self.state_id(state);
+        self.states[id].1 += 1;
+    }
+
+    fn end_log(&mut self, t: Time) {
+        self.close_episode(t);
+    }
+
+    fn transition(&mut self, t: Time, changed: u64) {
+        let from_vec = self.state;
+        let to_vec = from_vec ^ changed;
+        let from = self.state_id(from_vec);
+        let to = self.state_id(to_vec);
+        self.states[to].1 += 1;
+        let n = self.names.len();
+        let idx = match self.trans_ids.get(&(from_vec, to_vec)) {
+            Some(&i) => i,
+            None => {
+                let i = self.trans.len();
+                self.trans.push(TransAcc {
+                    from,
+                    to,
+                    changed,
+                    to_vec,
+                    count: 0,
+                    command: Hist::default(),
+                    refs: vec![Hist::default(); 2 * n],
+                });
+                self.trans_ids.insert((from_vec, to_vec), i);
+                i
+            }
+        };
+        let acc = &mut self.trans[idx];
+        acc.count += 1;
+        if let Some(o) = self.origin {
+            acc.command.add(t - o);
+        }
+        for (r, last) in self.last_edge.iter().enumerate() {
+            if let Some(l) = last {
+                acc.refs[r].add(t - l);
+            }
+        }
+        for bit in 0..n {
+            if changed >> bit & 1 == 1 {
+                let rising = to_vec >> bit & 1 == 1;
+                self.last_edge[2 * bit + usize::from(rising)] = Some(t);
+            }
+        }
+        self.state = to_vec;
+
+        let command = changed & self.act_mask() != 0;
+        if command {
+            self.close_episode(t);
+            self.origin = Some(t);
+            let sensors = n - self.n_act;
+            self.episode = Some(Episode {
+                act: to_vec & self.act_mask(),
+                t0: t,
+                v0: to_vec >> self.n_act,
+                edges: vec![(Vec::new(), 0); sensors],
+            });
+        } else if let Some(ep) = &mut self.episode {
+            let sensor_changes = changed >> self.n_act;
+            for (s, (times, count)) in ep.edges.iter_mut().enumerate() {
+                if sensor_changes >> s & 1 == 1 {
+                    if times.len() < 4 {
+                        times.push(t - ep.t0);
+                    }
+                    *count += 1;
+                }
+            }
+        }
+    }
+
+    fn close_episode(&mut self, t: Time) {
+        let Some(ep) = self.episode.take() else { return };
+        let sensors = self.names.len() - self.n_act;
+        let slot = match self.est.iter().position(|(a, _)| *a == ep.act) {
+            Some(i) => i,
+            None => {
+                self.est.push((ep.act, vec![EstAcc::default(); sensors]));
+                self.est.len() - 1
+            }
+        };
+        let duration = t - ep.t0;
+        for (s, (times, count)) in ep.edges.iter().enumerate() {
+            let acc = &mut self.est[slot].1[s];
+            acc.episodes += 1;
+            acc.v0_ones += ep.v0 >> s & 1;
+            *acc.counts.entry(*count).or_insert(0) += 1;
+            for (k, &tau) in times.iter().enumerate() {
+                let e = &mut acc.kth[k];
+                if e.2 == 0 {
+                    *e = (tau, tau, 1);
+                } else {
+                    e.0 = e.0.min(tau);
+                    e.1 = e.1.max(tau);
+                    e.2 += 1;
+                }
+            }
+            if *count < 4 {
+                acc.longest_with[*count] = acc.longest_with[*count].max(duration);
+            }
+        }
+    }
+
+    fn event_name(&self, changed: u64, to_vec: u64) -> String {
+        let mut parts = Vec::new();
+        for (bit, name) in self.names.iter().enumerate() {
+            if changed >> bit & 1 == 1 {
+                let edge = if to_vec >> bit & 1 == 1 { "RE" } else { "FE" };
+                parts.push(format!("{edge}({name})"));
+            }
+        }
+        parts.join(" ")
+    }
+
+    fn ref_name(&self, r: usize) -> String {
+        let edge = if r % 2 == 1 { "RE" } else { "FE" };
+        format!("{edge}({})", self.names[r / 2])
+    }
+
+    fn model(&self, options: &LearnOptions, margin: Time, scale: f64) -> PartModel {
+        let mut untimed = Vec::new();
+        let mut transitions = Vec::new();
+        for (id, acc) in self.trans.iter().enumerate() {
+            let event = self.event_name(acc.changed, acc.to_vec);
+            let command = acc.changed & self.act_mask() != 0;
+            // The clock: the command clock, unless an edge of the part that
+            // preceded every occurrence gives a much tighter interval.
+            let command_width = acc.command.width();
+            let best_ref = acc
+                .refs
+                .iter()
+                .enumerate()
+                .filter(|(_, h)| h.n > 0 && h.n == acc.count)
+                .min_by_key(|(_, h)| h.width());
+            let use_ref = !command
+                && best_ref.is_some_and(|(_, h)| {
+                    acc.command.n < acc.count
+                        || (h.width() as f64) <= options.tight_ratio * command_width as f64
+                });
+            let (clock, hist) = match best_ref {
+                Some((r, h)) if use_ref => (self.ref_name(r), h),
+                _ => ("command".to_string(), &acc.command),
+            };
+            if hist.n == 0 {
+                untimed.push(format!("{event}: never preceded by a command or another edge of the part"));
+            }
+            let guard = hist.guard(options, margin, scale);
+            let spread = guard.q99 - guard.q01;
+            let timed = !command
+                && hist.n > 0
+                && (spread <= options.timed_spread as f64 / scale || spread <= options.timed_relative * guard.q50);
+            if !command && hist.n > 0 && !timed {
+                untimed.push(format!(
+                    "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}): it follows the product flow, not a command",
+                    guard.q01, guard.q99
+                ));
+            }
+            let command_guard = if clock != "command" && acc.command.n > 0 {
+                Some(acc.command.guard(options, margin, scale))
+            } else {
+                None
+            };
+            transitions.push(TransitionModel {
+                id,
+                from: acc.from,
+                to: acc.to,
+                event,
+                command,
+                count: acc.count,
+                clock,
+                guard,
+                command_guard,
+                timed,
+            });
+        }
+
+        let states = self
+            .states
+            .iter()
+            .enumerate()
+            .map(|(id, &(v, visits))| {
+                let out: Vec<&TransitionModel> = transitions.iter().filter(|t| t.from == id).collect();
+                // A deadline only where every sensor event out of the state is
+                // timed: otherwise the state also stands for "waiting for a
+                // product", which may last any time.
+                let sensor_out: Vec<&&TransitionModel> = out.iter().filter(|t| !t.command).collect();
+                let expected = if sensor_out.iter().all(|t| t.timed) {
+                    sensor_out
+                        .iter()
+                        .map(|t| Expectation {
+                            transition: t.id,
+                            event: t.event.clone(),
+                            clock: t.clock.clone(),
+                            by: t.guard.hi,
+                        })
+                        .collect()
+                } else {
+                    Vec::new()
+                };
+                StateModel {
+                    id,
+                    values: (0..self.names.len()).map(|b| v >> b & 1 == 1).collect(),
+                    visits,
+                    stable: out.iter().all(|t| t.command),
+                    expected,
+                }
+            })
+            .collect();
+
+        let (estimates, sensor_estimates) = self.estimates(margin, scale, &mut untimed);
+        PartModel {
+            name: self.name.clone(),
+            signals: self.names.clone(),
+            actuators: self.n_act,
+            states,
+            transitions,
+            estimates,
+            sensor_estimates,
+            untimed,
+        }
+    }
+
+    fn estimates(&self, margin: Time, scale: f64, untimed: &mut Vec<String>) -> (Vec<Estimate>, Vec<SensorEstimate>) {
+        let sensors = self.names.len() - self.n_act;
+        let mut estimates = Vec::new();
+        // Per sensor: (interval name, value) over all actuator states.
+        let mut per_sensor: Vec<Vec<(String, &'static str)>> = vec![Vec::new(); sensors];
+        let mut estimable = vec![true; sensors];
+        let mut next_name = 1;
+        for (act, accs) in &self.est {
+            // Each estimable sensor: initial value, then uncertain windows.
+            let mut schedules: Vec<Option<(bool, Vec<(Time, Time)>)>> = Vec::new();
+            for (s, acc) in accs.iter().enumerate() {
+                let sensor = &self.names[self.n_act + s];
+                let actuators = self.act_label(*act);
+                match schedule(acc) {
+                    Ok(sched) => schedules.push(Some(sched)),
+                    Err(why) => {
+                        if estimable[s] {
+                            untimed.push(format!("estimate of {sensor} after {actuators}: {why}"));
+                        }
+                        estimable[s] = false;
+                        schedules.push(None);
+                    }
+                }
+            }
+            let mut cuts: Vec<Time> = Vec::new();
+            for (_, windows) in schedules.iter().flatten() {
+                for &(a, b) in windows {
+                    cuts.push((a - margin).max(0));
+                    cuts.push(b + margin + 1);
+                }
+            }
+            cuts.retain(|&c| c > 0);
+            cuts.sort_unstable();
+            cuts.dedup();
+            let mut bounds = vec![0];
+            bounds.extend(cuts);
+            let intervals: Vec<ClockInterval> = bounds
+                .iter()
+                .enumerate()
+                .map(|(i, &from)| {
+                    let name = format!("I{}", next_name + i);
+                    ClockInterval {
+                        name,
+                        from: from as f64 / scale,
+                        to: bounds.get(i + 1).map(|&to| to as f64 / scale),
+                    }
+                })
+                .collect();
+            next_name += intervals.len();
+            let mut sensor_rows = Vec::new();
+            for (s, sched) in schedules.iter().enumerate() {
+                let Some((v0, windows)) = sched else { continue };
+                let values: Vec<&'static str> = bounds
+                    .iter()
+                    .map(|&from| {
+                        let mut v = *v0;
+                        for &(a, b) in windows {
+                            let (a, b) = ((a - margin).max(0), b + margin + 1);
+                            if from >= a && from < b {
+                                return "uncertain";
+                            }
+                            if from >= b {
+                                v = !v;
+                            }
+                        }
+                        if v { "1" } else { "0" }
+                    })
+                    .collect();
+                for (iv, v) in intervals.iter().zip(&values) {
+                    per_sensor[s].push((iv.name.clone(), v));
+                }
+                sensor_rows.push(SensorSchedule {
+                    sensor: self.names[self.n_act + s].clone(),
+                    values: values.iter().map(|v| v.to_string()).collect(),
+                });
+            }
+            estimates.push(Estimate { actuators: self.act_label(*act), intervals, sensors: sensor_rows });
+        }
+        let sensor_estimates = (0..sensors)
+            .filter(|&s| estimable[s] && !per_sensor[s].is_empty())
+            .map(|s| {
+                let ones: Vec<&str> =
+                    per_sensor[s].iter().filter(|(_, v)| *v != "0").map(|(n, _)| n.as_str()).collect();
+                SensorEstimate {
+                    sensor: self.names[self.n_act + s].clone(),
+                    expr: if ones.is_empty() { "0".to_string() } else { ones.join(" | ") },
+                    uncertain: per_sensor[s]
+                        .iter()
+                        .filter(|(_, v)| *v == "uncertain")
+                        .map(|(n, _)| n.clone())
+                        .collect(),
+                }
+            })
+            .collect();
+        (estimates, sensor_estimates)
+    }
+
+    fn act_label(&self, act: u64) -> String {
+        (0..self.n_act)
+            .map(|b| format!("{}={}", self.names[b], act >> b & 1))
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+}
+
+/// A sensor's behaviour after one actuator state is commanded: its initial value
+/// and, for each of its edges, the window of the command clock in which it came.
+/// Fails (with the reason) when episodes disagree: the sensor then follows
+/// something other than the command.
+fn schedule(acc: &EstAcc) -> Result<(bool, Vec<(Time, Time)>), String> {
+    if acc.episodes == 0 {
+        return Err("never commanded".into());
+    }
+    if acc.v0_ones != 0 && acc.v0_ones != acc.episodes {
+        return Err(format!(
+            "its value at the command varies ({} of {} episodes at 1)",
+            acc.v0_ones, acc.episodes
+        ));
+    }
+    let (&k, _) = acc
+        .counts
+        .iter()
+        .max_by_key(|&(&c, &n)| (n, std::cmp::Reverse(c)))
+        .ok_or("no episode")?;
+    if k >= 4 {
+        return Err(format!("it changes {k} times per command"));
+    }
+    for (&c, &n) in &acc.counts {
+        if c > k || (c < k && c < 4 && acc.longest_with[c] >= acc.kth[c].0) {
+            return Err(format!(
+                "the number of its edges per command varies ({n} of {} episodes with {c} instead of {k}): it follows the product flow",
+                acc.episodes
+            ));
+        }
+    }
+    let windows: Vec<(Time, Time)> = acc.kth[..k].iter().map(|&(a, b, _)| (a, b)).collect();
+    if windows.windows(2).any(|w| w[0].1 >= w[1].0) {
+        return Err("its edge windows overlap".into());
+    }
+    Ok((acc.v0_ones > 0, windows))
+}

@@ -1,0 +1,1 @@
+//! Part suggestion (being written).
