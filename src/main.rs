@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod learn;
 mod simulate;
 
 /// Decentralised timed fault diagnosis for PLC-controlled plants, coupled to the
@@ -20,6 +21,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Learn one timed model per plant part from logs of normal operation.
+    Learn(learn::LearnArgs),
     /// Simulate a reference plant (with injected faults) and write its logs.
     Simulate(simulate::SimulateArgs),
 }
@@ -62,6 +65,7 @@ fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
+        Command::Learn(args) => learn::run(args),
         Command::Simulate(args) => simulate::run(args),
     };
     match result {

@@ -55,7 +55,10 @@ impl<'m> PartCheck<'m> {
         }
         st.expected
             .iter()
-            .filter_map(|e| self.clock_origin(&e.clock).map(|o| o + (e.by * scale).round() as Time))
+            .filter_map(|e| {
+                self.clock_origin(&e.clock)
+                    .map(|o| o + (e.by * scale).round() as Time)
+            })
             .max()
     }
 
@@ -89,10 +92,28 @@ pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violati
         let states = pm
             .states
             .iter()
-            .map(|s| (s.values.iter().enumerate().fold(0u64, |v, (b, &x)| v | (u64::from(x) << b)), s.id))
+            .map(|s| {
+                (
+                    s.values
+                        .iter()
+                        .enumerate()
+                        .fold(0u64, |v, (b, &x)| v | (u64::from(x) << b)),
+                    s.id,
+                )
+            })
             .collect::<HashMap<_, _>>();
-        let vec_of = |id: usize| states.iter().find(|&(_, &i)| i == id).map(|(&v, _)| v).unwrap_or(0);
-        let trans = pm.transitions.iter().map(|t| ((vec_of(t.from), vec_of(t.to)), t.id)).collect();
+        let vec_of = |id: usize| {
+            states
+                .iter()
+                .find(|&(_, &i)| i == id)
+                .map(|(&v, _)| v)
+                .unwrap_or(0)
+        };
+        let trans = pm
+            .transitions
+            .iter()
+            .map(|t| ((vec_of(t.from), vec_of(t.to)), t.id))
+            .collect();
         parts.push(PartCheck {
             model: pm,
             state,
@@ -148,7 +169,9 @@ fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
     if pc.reported {
         return;
     }
-    let Some(deadline) = pc.deadline(scale) else { return };
+    let Some(deadline) = pc.deadline(scale) else {
+        return;
+    };
     if now > deadline {
         pc.reported = true;
         let st = &pc.model.states[pc.states[&pc.state]];
@@ -157,7 +180,17 @@ fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
             .iter()
             .map(|e| {
                 let g = &pc.model.transitions[e.transition].guard;
-                format!("{} within [{}, {}] after {}", e.event, g.lo, g.hi, if e.clock == "command" { "the last command".to_string() } else { e.clock.clone() })
+                format!(
+                    "{} within [{}, {}] after {}",
+                    e.event,
+                    g.lo,
+                    g.hi,
+                    if e.clock == "command" {
+                        "the last command".to_string()
+                    } else {
+                        e.clock.clone()
+                    }
+                )
             })
             .collect();
         out.push(Violation {
@@ -165,12 +198,22 @@ fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
             // is late from the moment it is entered.
             t: deadline.max(pc.entered),
             part: pc.model.name.clone(),
-            message: format!("in state {}: no {}", pc.label(pc.state), expected.join(", nor ")),
+            message: format!(
+                "in state {}: no {}",
+                pc.label(pc.state),
+                expected.join(", nor ")
+            ),
         });
     }
 }
 
-fn step(parts: &mut [PartCheck], t: Time, touched: &mut Vec<(usize, u64)>, scale: f64, out: &mut Vec<Violation>) {
+fn step(
+    parts: &mut [PartCheck],
+    t: Time,
+    touched: &mut Vec<(usize, u64)>,
+    scale: f64,
+    out: &mut Vec<Violation>,
+) {
     for pc in parts.iter_mut() {
         missed(pc, t, scale, out);
     }
@@ -188,7 +231,11 @@ fn step(parts: &mut [PartCheck], t: Time, touched: &mut Vec<(usize, u64)>, scale
             None => out.push(Violation {
                 t,
                 part: pc.model.name.clone(),
-                message: format!("unexpected change from {} to {}", pc.label(from), pc.label(to)),
+                message: format!(
+                    "unexpected change from {} to {}",
+                    pc.label(from),
+                    pc.label(to)
+                ),
             }),
             Some(tr) if tr.timed => {
                 if let Some(o) = pc.clock_origin(&tr.clock) {
@@ -200,7 +247,11 @@ fn step(parts: &mut [PartCheck], t: Time, touched: &mut Vec<(usize, u64)>, scale
                             message: format!(
                                 "{} at {clock} after {}, outside its guard [{}, {}]",
                                 tr.event,
-                                if tr.clock == "command" { "the last command" } else { &tr.clock },
+                                if tr.clock == "command" {
+                                    "the last command"
+                                } else {
+                                    &tr.clock
+                                },
                                 tr.guard.lo,
                                 tr.guard.hi
                             ),
@@ -215,7 +266,11 @@ fn step(parts: &mut [PartCheck], t: Time, touched: &mut Vec<(usize, u64)>, scale
                 pc.last_edge[2 * bit + usize::from(to >> bit & 1 == 1)] = Some(t);
             }
         }
-        let act_mask = if pc.model.actuators >= 64 { u64::MAX } else { (1u64 << pc.model.actuators) - 1 };
+        let act_mask = if pc.model.actuators >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << pc.model.actuators) - 1
+        };
         if changed & act_mask != 0 {
             pc.origin = Some(t);
         }

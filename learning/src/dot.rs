@@ -11,8 +11,16 @@ pub fn part_to_dot(model: &Model, part: &PartModel) -> String {
     let unit = model.time_unit.name();
     let mut out = String::new();
     let _ = writeln!(out, "digraph \"{}\" {{", escape(&part.name));
-    let _ = writeln!(out, "  rankdir=LR;\n  node [shape=box, style=rounded, fontname=\"Helvetica\"];");
-    let _ = writeln!(out, "  label=\"{} — {}\";", escape(&model.plant), escape(&part.name));
+    let _ = writeln!(
+        out,
+        "  rankdir=LR;\n  node [shape=box, style=rounded, fontname=\"Helvetica\"];"
+    );
+    let _ = writeln!(
+        out,
+        "  label=\"{} — {}\";",
+        escape(&model.plant),
+        escape(&part.name)
+    );
     for s in &part.states {
         let label = part
             .signals
@@ -22,13 +30,23 @@ pub fn part_to_dot(model: &Model, part: &PartModel) -> String {
             .collect::<Vec<_>>()
             .join(" ");
         let shape = if s.stable { ", peripheries=2" } else { "" };
-        let _ = writeln!(out, "  s{} [label=\"{}\\n({} visits)\"{shape}];", s.id, escape(&label), s.visits);
+        let _ = writeln!(
+            out,
+            "  s{} [label=\"{}\\n({} visits)\"{shape}];",
+            s.id,
+            escape(&label),
+            s.visits
+        );
     }
     for t in &part.transitions {
         let guard = if t.command {
             String::new()
         } else if t.timed {
-            let clock = if t.clock == "command" { String::new() } else { format!(" after {}", t.clock) };
+            let clock = if t.clock == "command" {
+                String::new()
+            } else {
+                format!(" after {}", t.clock)
+            };
             format!("\\n[{}, {}] {unit}{clock}", t.guard.lo, t.guard.hi)
         } else {
             "\\n(untimed)".to_string()

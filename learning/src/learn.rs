@@ -35,6 +35,9 @@ pub struct LearnOptions {
     pub timed_spread: Time,
     /// See `timed_spread`.
     pub timed_relative: f64,
+    /// Fewest occurrences for a transition to be timed, or for another edge to
+    /// be chosen as its clock: with fewer, a tight interval may be chance.
+    pub min_samples: u64,
 }
 
 impl Default for LearnOptions {
@@ -46,6 +49,7 @@ impl Default for LearnOptions {
             tight_ratio: 0.5,
             timed_spread: diagnoser::SECOND,
             timed_relative: 0.2,
+            min_samples: 20,
         }
     }
 }
@@ -73,23 +77,52 @@ impl<'p> Learner<'p> {
         let mut routes = vec![Vec::new(); plant.signals.len()];
         let mut parts = Vec::new();
         for (pi, part) in plant.parts.iter().enumerate() {
-            let ids: Vec<_> = part.actuators.iter().chain(&part.sensors).copied().collect();
+            let ids: Vec<_> = part
+                .actuators
+                .iter()
+                .chain(&part.sensors)
+                .copied()
+                .collect();
             if ids.len() > 64 {
-                return Err(format!("part '{}' has {} signals; at most 64 can be learned", part.name, ids.len()));
+                return Err(format!(
+                    "part '{}' has {} signals; at most 64 can be learned",
+                    part.name,
+                    ids.len()
+                ));
             }
             for (bit, id) in ids.iter().enumerate() {
                 routes[id.index()].push((pi, bit as u8));
             }
-            let names = ids.iter().map(|&id| plant.signals.name(id).to_string()).collect();
-            parts.push(PartLearner::new(part.name.clone(), names, part.actuators.len()));
+            let names = ids
+                .iter()
+                .map(|&id| plant.signals.name(id).to_string())
+                .collect();
+            parts.push(PartLearner::new(
+                part.name.clone(),
+                names,
+                part.actuators.len(),
+            ));
         }
         let margin = options.margin.unwrap_or(plant.scan_period);
-        Ok(Learner { plant, options, margin, parts, routes, logs: Vec::new(), events: 0, duration: 0 })
+        Ok(Learner {
+            plant,
+            options,
+            margin,
+            parts,
+            routes,
+            logs: Vec::new(),
+            events: 0,
+            duration: 0,
+        })
     }
 
     /// Reads one log to its end. `progress` is called after each batch with the
     /// number of events read so far from this log.
-    pub fn learn_log(&mut self, log: LogStream, mut progress: impl FnMut(u64)) -> Result<(), Located> {
+    pub fn learn_log(
+        &mut self,
+        log: LogStream,
+        mut progress: impl FnMut(u64),
+    ) -> Result<(), Located> {
         self.logs.push(log.path.display().to_string());
         let initial = log.initial;
         for (pi, part) in self.parts.iter_mut().enumerate() {
@@ -116,7 +149,11 @@ impl<'p> Learner<'p> {
                     }
                     scan = Some(t);
                 }
-                for &(p, bit) in self.routes.get(signal.index()).map_or(&[][..], Vec::as_slice) {
+                for &(p, bit) in self
+                    .routes
+                    .get(signal.index())
+                    .map_or(&[][..], Vec::as_slice)
+                {
                     let mask = 1u64 << bit;
                     match touched.iter_mut().find(|(q, _)| *q == p) {
                         Some((_, m)) => {
@@ -166,13 +203,21 @@ impl<'p> Learner<'p> {
             margin_relative: self.options.margin_relative,
             trim: self.options.trim,
         };
-        let parts = self.parts.iter().map(|p| p.model(&self.options, self.margin, scale)).collect();
+        let parts = self
+            .parts
+            .iter()
+            .map(|p| p.model(&self.options, self.margin, scale))
+            .collect();
         Model {
             version: MODEL_VERSION,
             plant: self.plant.name.clone(),
             time_unit: unit,
             scan_period: self.plant.scan_period as f64 / scale,
-            learned_from: Provenance { logs: self.logs, events: self.events, duration: self.duration as f64 / scale },
+            learned_from: Provenance {
+                logs: self.logs,
+                events: self.events,
+                duration: self.duration as f64 / scale,
+            },
             settings,
             parts,
         }
@@ -242,7 +287,11 @@ impl Hist {
     }
 
     fn sorted(&self) -> Vec<(i64, u64)> {
-        let mut v: Vec<(i64, u64)> = self.bins.iter().map(|(&k, &c)| (k << self.shift, c)).collect();
+        let mut v: Vec<(i64, u64)> = self
+            .bins
+            .iter()
+            .map(|(&k, &c)| (k << self.shift, c))
+            .collect();
         v.sort_unstable();
         v
     }
@@ -266,7 +315,11 @@ impl Hist {
         let min = s.first().map_or(0, |&(v, _)| v);
         let max = s.last().map_or(0, |&(v, _)| v + (1 << self.shift) - 1);
         let q = |p: f64| Hist::quantile(&s, n, p);
-        let (lo, hi) = if options.trim > 0.0 { (q(options.trim), q(1.0 - options.trim)) } else { (min, max) };
+        let (lo, hi) = if options.trim > 0.0 {
+            (q(options.trim), q(1.0 - options.trim))
+        } else {
+            (min, max)
+        };
         let widen = margin as f64 + options.margin_relative * (hi - lo) as f64;
         Guard {
             n,
@@ -361,7 +414,11 @@ impl PartLearner {
     }
 
     fn act_mask(&self) -> u64 {
-        if self.n_act >= 64 { u64::MAX } else { (1u64 << self.n_act) - 1 }
+        if self.n_act >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << self.n_act) - 1
+        }
     }
 
     fn state_id(&mut self, v: u64) -> usize {
@@ -454,7 +511,9 @@ impl PartLearner {
     }
 
     fn close_episode(&mut self, t: Time) {
-        let Some(ep) = self.episode.take() else { return };
+        let Some(ep) = self.episode.take() else {
+            return;
+        };
         let sensors = self.names.len() - self.n_act;
         let slot = match self.est.iter().position(|(a, _)| *a == ep.act) {
             Some(i) => i,
@@ -514,7 +573,7 @@ impl PartLearner {
                 .refs
                 .iter()
                 .enumerate()
-                .filter(|(_, h)| h.n > 0 && h.n == acc.count)
+                .filter(|(_, h)| h.n >= options.min_samples && h.n == acc.count)
                 .min_by_key(|(_, h)| h.width());
             let use_ref = !command
                 && best_ref.is_some_and(|(_, h)| {
@@ -526,14 +585,22 @@ impl PartLearner {
                 _ => ("command".to_string(), &acc.command),
             };
             if hist.n == 0 {
-                untimed.push(format!("{event}: never preceded by a command or another edge of the part"));
+                untimed.push(format!(
+                    "{event}: never preceded by a command or another edge of the part"
+                ));
             }
             let guard = hist.guard(options, margin, scale);
             let spread = guard.q99 - guard.q01;
             let timed = !command
-                && hist.n > 0
-                && (spread <= options.timed_spread as f64 / scale || spread <= options.timed_relative * guard.q50);
-            if !command && hist.n > 0 && !timed {
+                && hist.n >= options.min_samples
+                && (spread <= options.timed_spread as f64 / scale
+                    || spread <= options.timed_relative * guard.q50);
+            if !command && hist.n > 0 && hist.n < options.min_samples {
+                untimed.push(format!(
+                    "{event}: only {} occurrence(s), too few to time",
+                    hist.n
+                ));
+            } else if !command && hist.n > 0 && !timed {
                 untimed.push(format!(
                     "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}): it follows the product flow, not a command",
                     guard.q01, guard.q99
@@ -558,16 +625,40 @@ impl PartLearner {
             });
         }
 
+        // A state that may be left by an untimed event also stands for "waiting
+        // for the product": the time of its other exits depends on the product
+        // too, so none of them is timed.
+        for id in 0..self.states.len() {
+            let exits: Vec<usize> = transitions
+                .iter()
+                .filter(|t| t.from == id && !t.command)
+                .map(|t| t.id)
+                .collect();
+            if exits.iter().any(|&i| !transitions[i].timed) {
+                for i in exits {
+                    if transitions[i].timed {
+                        transitions[i].timed = false;
+                        untimed.push(format!(
+                            "{}: leaves a state that is also left by untimed events (the product flow)",
+                            transitions[i].event
+                        ));
+                    }
+                }
+            }
+        }
+
         let states = self
             .states
             .iter()
             .enumerate()
             .map(|(id, &(v, visits))| {
-                let out: Vec<&TransitionModel> = transitions.iter().filter(|t| t.from == id).collect();
+                let out: Vec<&TransitionModel> =
+                    transitions.iter().filter(|t| t.from == id).collect();
                 // A deadline only where every sensor event out of the state is
                 // timed: otherwise the state also stands for "waiting for a
                 // product", which may last any time.
-                let sensor_out: Vec<&&TransitionModel> = out.iter().filter(|t| !t.command).collect();
+                let sensor_out: Vec<&&TransitionModel> =
+                    out.iter().filter(|t| !t.command).collect();
                 let expected = if sensor_out.iter().all(|t| t.timed) {
                     sensor_out
                         .iter()
@@ -604,7 +695,12 @@ impl PartLearner {
         }
     }
 
-    fn estimates(&self, margin: Time, scale: f64, untimed: &mut Vec<String>) -> (Vec<Estimate>, Vec<SensorEstimate>) {
+    fn estimates(
+        &self,
+        margin: Time,
+        scale: f64,
+        untimed: &mut Vec<String>,
+    ) -> (Vec<Estimate>, Vec<SensorEstimate>) {
         let sensors = self.names.len() - self.n_act;
         let mut estimates = Vec::new();
         // Per sensor: (interval name, value) over all actuator states.
@@ -613,7 +709,7 @@ impl PartLearner {
         let mut next_name = 1;
         for (act, accs) in &self.est {
             // Each estimable sensor: initial value, then uncertain windows.
-            let mut schedules: Vec<Option<(bool, Vec<(Time, Time)>)>> = Vec::new();
+            let mut schedules: Vec<Option<Schedule>> = Vec::new();
             for (s, acc) in accs.iter().enumerate() {
                 let sensor = &self.names[self.n_act + s];
                 let actuators = self.act_label(*act);
@@ -680,16 +776,27 @@ impl PartLearner {
                     values: values.iter().map(|v| v.to_string()).collect(),
                 });
             }
-            estimates.push(Estimate { actuators: self.act_label(*act), intervals, sensors: sensor_rows });
+            estimates.push(Estimate {
+                actuators: self.act_label(*act),
+                intervals,
+                sensors: sensor_rows,
+            });
         }
         let sensor_estimates = (0..sensors)
             .filter(|&s| estimable[s] && !per_sensor[s].is_empty())
             .map(|s| {
-                let ones: Vec<&str> =
-                    per_sensor[s].iter().filter(|(_, v)| *v != "0").map(|(n, _)| n.as_str()).collect();
+                let ones: Vec<&str> = per_sensor[s]
+                    .iter()
+                    .filter(|(_, v)| *v != "0")
+                    .map(|(n, _)| n.as_str())
+                    .collect();
                 SensorEstimate {
                     sensor: self.names[self.n_act + s].clone(),
-                    expr: if ones.is_empty() { "0".to_string() } else { ones.join(" | ") },
+                    expr: if ones.is_empty() {
+                        "0".to_string()
+                    } else {
+                        ones.join(" | ")
+                    },
                     uncertain: per_sensor[s]
                         .iter()
                         .filter(|(_, v)| *v == "uncertain")
@@ -709,11 +816,15 @@ impl PartLearner {
     }
 }
 
+/// A sensor's value at a command, and the windows of the command clock in which
+/// each of its following edges came.
+type Schedule = (bool, Vec<(Time, Time)>);
+
 /// A sensor's behaviour after one actuator state is commanded: its initial value
 /// and, for each of its edges, the window of the command clock in which it came.
 /// Fails (with the reason) when episodes disagree: the sensor then follows
 /// something other than the command.
-fn schedule(acc: &EstAcc) -> Result<(bool, Vec<(Time, Time)>), String> {
+fn schedule(acc: &EstAcc) -> Result<Schedule, String> {
     if acc.episodes == 0 {
         return Err("never commanded".into());
     }

@@ -1,1 +1,633 @@
-//! Part suggestion (being written).
+//! Part suggestion: which sensors follow which actuator, from logs alone.
+//!
+//! A plant file groups signals into parts (an actuator and the sensors that see
+//! what it moves). Writing that grouping needs knowledge of the plant; this
+//! module proposes one from recorded behaviour, for an engineer to review.
+//!
+//! # Method
+//!
+//! For an actuator `a` and a sensor `s`, every edge of `a` opens a window that
+//! closes at `a`'s next edge; the first edge of `s` in that window is its
+//! *follower*. A sensor edge in the same timestamp as the actuator edge does not
+//! follow it: within one PLC scan the inputs are read before the outputs are
+//! written, so such a sensor edge was caused by something else (often it is the
+//! cause of the actuator edge). A follower later than
+//! [`SuggestOptions::max_delay`] does not count either.
+//!
+//! `s` is a candidate for `a` when:
+//! 1. in each direction (rising, falling) in which `s` has edges, at least
+//!    [`SuggestOptions::follower_share`] of them are the follower of an edge of
+//!    `a` (what `a` does explains nearly everything `s` does); and
+//! 2. for each pair of directions (edge of `a`, edge of `s`) that occurs — that
+//!    accounts for at least [`SuggestOptions::min_pair_share`] of `s`'s edges in
+//!    its direction, rarer pairs being within the tolerance of 1. — the delays
+//!    are concentrated: `q95 − q05 ≤ max(spread_ratio × q50, min_spread)`. The
+//!    relative term is the one of the textbook criterion; the absolute floor is
+//!    there because short delays carry an absolute jitter (scan quantisation,
+//!    valve and contact play) that no ratio captures: on the sorting line the
+//!    turntable leaves C4 30 to 130 ms after its order, a spread of 100 ms around
+//!    80 ms, yet C4 belongs to the turntable beyond doubt. Independent signals
+//!    give followers spread over the whole window between two actuator edges,
+//!    seconds to minutes, and fail both terms.
+//!
+//! A sensor goes to the candidate whose own edges are most often followed by an
+//! edge of the sensor (the converse of 1.). Orders come in chains, and an order
+//! given in the same scan as another explains the sensor just as well by 1. and
+//! 2.: on the sorting line the rollers (A2) stop in the very scan the turntable
+//! (A4) starts, so C4's edges follow A2's as closely as A4's. But every edge of
+//! A4 moves the turntable off or onto C4, while a third of A2's edges (the
+//! starts and stops of loading and evacuation that do not coincide with A4) are
+//! followed by nothing on C4. Among candidates within
+//! [`SuggestOptions::share_tie`] of the best such share, the shortest typical
+//! delay (median delay averaged over the pairs, weighted by count) wins: the
+//! last order before an edge is its most direct cause. Each actuator becomes
+//! one part, with the sensors it won, possibly none.
+//!
+//! # Memory
+//!
+//! Logs are streamed batch by batch. What is kept is, per actuator, its last
+//! edge; per (actuator, sensor), whether the window has had its follower, follower
+//! counts and, allocated when the pair first occurs, four log-scale histograms of
+//! delays (2 % wide bins from `max_delay / 10⁵` to `max_delay`, about 2 KiB
+//! each). That is independent of the logs' length.
+
+use std::fmt::Write as _;
+
+use diagnoser::{Event, Located, Location, MS, SECOND, SignalId, SignalKind, SignalTable, Time};
+
+use crate::ingest::LogStream;
+
+/// Thresholds of the suggestion (see the [module documentation](self)).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SuggestOptions {
+    /// Share of a sensor's edges, in each direction, that must follow an edge of
+    /// the actuator (default 0.9).
+    pub follower_share: f64,
+    /// Longest delay from an actuator edge to its follower (default 10 s).
+    pub max_delay: Time,
+    /// Largest `(q95 − q05) / q50` of a pair's delays (default 0.2)...
+    pub spread_ratio: f64,
+    /// ...unless `q95 − q05` is at most this (default 250 ms).
+    pub min_spread: Time,
+    /// Fewest edges a sensor needs before anything is concluded about it
+    /// (default 10).
+    pub min_edges: u64,
+    /// Share of a sensor's edges in one direction below which a pair of
+    /// directions is too rare to judge its delays (default 0.05).
+    pub min_pair_share: f64,
+    /// Candidates whose share of actuator edges followed by the sensor is within
+    /// this of the best are ranked by delay instead (default 0.05).
+    pub share_tie: f64,
+}
+
+impl Default for SuggestOptions {
+    fn default() -> Self {
+        SuggestOptions {
+            follower_share: 0.9,
+            max_delay: 10 * SECOND,
+            spread_ratio: 0.2,
+            min_spread: 250 * MS,
+            min_edges: 10,
+            min_pair_share: 0.05,
+            share_tie: 0.05,
+        }
+    }
+}
+
+/// One suggested part.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SuggestedPart {
+    /// Its name, `part_<actuator>`.
+    pub name: String,
+    /// Its actuators (one).
+    pub actuators: Vec<SignalId>,
+    /// The sensors that follow them, in signal order.
+    pub sensors: Vec<SignalId>,
+    /// Why each sensor is here, in the order of `sensors`.
+    pub evidence: Vec<SensorEvidence>,
+}
+
+/// Why a sensor was put with an actuator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorEvidence {
+    /// The sensor.
+    pub sensor: SignalId,
+    /// The actuator it follows.
+    pub actuator: SignalId,
+    /// Its rising and falling edges, in all logs.
+    pub edges: [u64; 2],
+    /// How many of them follow an edge of the actuator, indexed like `edges`.
+    pub followers: [u64; 2],
+    /// The actuator's edges, in all logs (each followed by at most one edge of
+    /// the sensor, so `followers[0] + followers[1]` of them are followed).
+    pub actuator_edges: u64,
+    /// The delays of each pair of directions that occurs.
+    pub delays: Vec<DelayStats>,
+    /// The typical delay that ranked this actuator first (median delay
+    /// averaged over the pairs, weighted by count).
+    pub typical_delay: Time,
+}
+
+impl SensorEvidence {
+    /// Share of the sensor's rising (`true`) or falling edges that follow an edge
+    /// of the actuator (1 when it has none in that direction).
+    pub fn share(&self, rising: bool) -> f64 {
+        let i = usize::from(rising);
+        if self.edges[i] == 0 {
+            1.0
+        } else {
+            self.followers[i] as f64 / self.edges[i] as f64
+        }
+    }
+
+    /// Share of the actuator's edges followed by an edge of the sensor.
+    pub fn actuator_share(&self) -> f64 {
+        let followed = self.followers[0] + self.followers[1];
+        followed as f64 / self.actuator_edges.max(1) as f64
+    }
+}
+
+/// Delays from edges of an actuator to the edges of a sensor that follow them,
+/// for one pair of directions. Quantiles are exact to 2 %.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DelayStats {
+    /// Direction of the actuator's edges (`true`: rising).
+    pub actuator_rising: bool,
+    /// Direction of the sensor's edges.
+    pub sensor_rising: bool,
+    /// Number of delays.
+    pub count: u64,
+    /// 5th percentile.
+    pub q05: Time,
+    /// Median.
+    pub q50: Time,
+    /// 95th percentile.
+    pub q95: Time,
+}
+
+/// Suggests parts from `logs`, read one after the other (edges never pair
+/// across logs). Every actuator of `signals` gets one part, with the sensors
+/// that follow it best; sensors that follow no actuator closely are in no part.
+///
+/// Fails on the first error of a log, or if a log does not fit `signals` (wrong
+/// number of initial values, unknown signal ids, events out of time order).
+pub fn suggest_parts(
+    signals: &SignalTable,
+    logs: Vec<LogStream>,
+    options: &SuggestOptions,
+) -> Result<Vec<SuggestedPart>, Located> {
+    let mut stats = Stats::new(signals, options);
+    for log in logs {
+        stats.read(log)?;
+    }
+    Ok(stats.parts(signals, options))
+}
+
+/// Prints parts as `[[parts]]` blocks of a plant file, with the evidence as
+/// comments, and the sensors left out as a final comment.
+pub fn to_toml(parts: &[SuggestedPart], signals: &SignalTable) -> String {
+    let mut out = String::from(
+        "# Parts suggested by gardefou from logs alone: review them before use.\n\
+         # A sensor is put with the actuator whose edges it follows most consistently.\n",
+    );
+    let names = |ids: &[SignalId]| {
+        ids.iter()
+            .map(|&id| toml_string(signals.name(id)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let ms = approx_ms;
+    let edge = |rising: bool, name: &str| format!("{}({name})", if rising { "RE" } else { "FE" });
+    for part in parts {
+        // `writeln!` into a String cannot fail.
+        let _ = writeln!(out, "\n[[parts]]");
+        let _ = writeln!(out, "name = {}", toml_string(&part.name));
+        let _ = writeln!(out, "actuators = [{}]", names(&part.actuators));
+        let _ = writeln!(out, "sensors = [{}]", names(&part.sensors));
+        for e in &part.evidence {
+            let (s, a) = (signals.name(e.sensor), signals.name(e.actuator));
+            let _ = writeln!(
+                out,
+                "# {s}: {}/{} rising and {}/{} falling edges follow an edge of {a}; {}/{} edges of {a} are followed by one of {s}",
+                e.followers[1],
+                e.edges[1],
+                e.followers[0],
+                e.edges[0],
+                e.followers[0] + e.followers[1],
+                e.actuator_edges
+            );
+            for d in &e.delays {
+                let _ = writeln!(
+                    out,
+                    "#   {} -> {}: {} times, median {}, 90 % within [{}, {}]",
+                    edge(d.actuator_rising, a),
+                    edge(d.sensor_rising, s),
+                    d.count,
+                    ms(d.q50),
+                    ms(d.q05),
+                    ms(d.q95)
+                );
+            }
+        }
+    }
+    let placed: Vec<SignalId> = parts
+        .iter()
+        .flat_map(|p| p.sensors.iter().copied())
+        .collect();
+    let left: Vec<&str> = signals
+        .iter()
+        .filter(|(id, s)| s.kind == SignalKind::Sensor && !placed.contains(id))
+        .map(|(_, s)| s.name.as_str())
+        .collect();
+    if !left.is_empty() {
+        let _ = writeln!(
+            out,
+            "\n# Sensors that follow no actuator closely enough: {}",
+            left.join(", ")
+        );
+    }
+    out
+}
+
+/// A delay in milliseconds to three significant digits or so: the quantiles
+/// are exact to 2 %, and more digits would pretend otherwise.
+fn approx_ms(t: Time) -> String {
+    let ms = t as f64 / MS as f64;
+    let decimals = if ms >= 100.0 {
+        0
+    } else if ms >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{ms:.decimals$} ms")
+}
+
+/// A TOML basic string.
+fn toml_string(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 2);
+    out.push('"');
+    for c in text.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c if c.is_control() => {
+                let _ = write!(out, "\\u{:04X}", c as u32);
+            }
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// Log-scale bins of delays.
+#[derive(Debug, Clone, Copy)]
+struct Bins {
+    /// Lower end: delays up to it share bin 0.
+    low: f64,
+    /// ln of the ratio of consecutive bin edges.
+    ln_ratio: f64,
+    count: usize,
+}
+
+impl Bins {
+    /// 2 % wide bins from `max / 10⁵` to `max`.
+    fn new(max: Time) -> Self {
+        let max = max.max(1) as f64;
+        let low = (max / 1e5).max(1.0);
+        let ln_ratio = 1.02f64.ln();
+        let count = ((max / low).ln() / ln_ratio).ceil() as usize + 2;
+        Bins {
+            low,
+            ln_ratio,
+            count,
+        }
+    }
+
+    fn bin(&self, delay: Time) -> usize {
+        let d = delay as f64;
+        if d <= self.low {
+            0
+        } else {
+            (((d / self.low).ln() / self.ln_ratio).ceil() as usize).min(self.count - 1)
+        }
+    }
+
+    /// The middle of bin `b` (geometric, as the bins are).
+    fn value(&self, b: usize) -> Time {
+        if b == 0 {
+            self.low.round() as Time
+        } else {
+            (self.low * ((b as f64 - 0.5) * self.ln_ratio).exp()).round() as Time
+        }
+    }
+
+    /// The `q` quantile of the counts `h`, whose sum is `total`.
+    fn quantile(&self, h: &[u32], total: u64, q: f64) -> Time {
+        // The rank of the quantile among the sorted delays, from 1.
+        let rank = ((q * total as f64).ceil() as u64).clamp(1, total.max(1));
+        let mut seen = 0u64;
+        for (b, &c) in h.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= rank {
+                return self.value(b);
+            }
+        }
+        self.value(h.len().saturating_sub(1))
+    }
+}
+
+/// What a sensor edge is attributed to: per actuator, its last edge.
+struct Stats {
+    actuators: Vec<SignalId>,
+    sensors: Vec<SignalId>,
+    /// Position of each signal in `actuators` or `sensors`.
+    role: Vec<Role>,
+    max_delay: Time,
+    bins: Bins,
+    /// Per sensor, its falling and rising edges.
+    edges: Vec<[u64; 2]>,
+    /// Per actuator, its edges.
+    actuator_edges: Vec<u64>,
+    /// Per (actuator, sensor): its followers, by sensor direction.
+    followers: Vec<[u64; 2]>,
+    /// Per (actuator, sensor, actuator direction, sensor direction): delays.
+    histograms: Vec<Option<Box<[u32]>>>,
+    counts: Vec<u64>,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Role {
+    Actuator(usize),
+    Sensor(usize),
+}
+
+/// The state of the log being read.
+struct LogState {
+    values: Vec<bool>,
+    /// Per actuator: time and direction of its last edge.
+    last: Vec<Option<(Time, bool)>>,
+    /// Per (actuator, sensor): whether the actuator's window has had its follower.
+    matched: Vec<bool>,
+    /// The events of the scan being gathered.
+    scan: Vec<Event>,
+}
+
+impl Stats {
+    fn new(signals: &SignalTable, options: &SuggestOptions) -> Self {
+        let actuators: Vec<SignalId> = signals.of_kind(SignalKind::Actuator).collect();
+        let sensors: Vec<SignalId> = signals.of_kind(SignalKind::Sensor).collect();
+        let mut role = vec![Role::Sensor(0); signals.len()];
+        for (i, &a) in actuators.iter().enumerate() {
+            role[a.index()] = Role::Actuator(i);
+        }
+        for (i, &s) in sensors.iter().enumerate() {
+            role[s.index()] = Role::Sensor(i);
+        }
+        let pairs = actuators.len() * sensors.len();
+        Stats {
+            max_delay: options.max_delay,
+            bins: Bins::new(options.max_delay),
+            edges: vec![[0; 2]; sensors.len()],
+            actuator_edges: vec![0; actuators.len()],
+            followers: vec![[0; 2]; pairs],
+            histograms: vec![None; pairs * 4],
+            counts: vec![0; pairs * 4],
+            actuators,
+            sensors,
+            role,
+        }
+    }
+
+    fn pair(&self, a: usize, s: usize) -> usize {
+        a * self.sensors.len() + s
+    }
+
+    fn read(&mut self, log: LogStream) -> Result<(), Located> {
+        let n = self.role.len();
+        let whole = |message: String| Located::new(Location::new(&log.path, 0, 0), message);
+        if log.initial.len() != n {
+            return Err(whole(format!(
+                "the log has {} initial values for {n} signals",
+                log.initial.len()
+            )));
+        }
+        let mut state = LogState {
+            values: log.initial.clone(),
+            last: vec![None; self.actuators.len()],
+            matched: vec![false; self.actuators.len() * self.sensors.len()],
+            scan: Vec::new(),
+        };
+        let mut previous = log.start;
+        for batch in log.batches {
+            for event in batch? {
+                if event.signal.index() >= n {
+                    return Err(whole(format!(
+                        "event for signal id {}, but there are only {n} signals",
+                        event.signal.0
+                    )));
+                }
+                if event.t < previous {
+                    return Err(whole(format!(
+                        "events out of time order: {} ns after {} ns",
+                        event.t, previous
+                    )));
+                }
+                if event.t != previous && !state.scan.is_empty() {
+                    self.scan(&mut state);
+                }
+                previous = event.t;
+                state.scan.push(event);
+            }
+        }
+        self.scan(&mut state);
+        Ok(())
+    }
+
+    /// Takes in one scan's events: sensor edges first, since they cannot have
+    /// been caused by the actuator edges of the same scan.
+    fn scan(&mut self, state: &mut LogState) {
+        let mut scan = std::mem::take(&mut state.scan);
+        for event in &scan {
+            let i = event.signal.index();
+            if state.values[i] == event.value {
+                continue;
+            }
+            if let Role::Sensor(s) = self.role[i] {
+                self.sensor_edge(state, s, event.t, event.value);
+            }
+        }
+        for event in &scan {
+            let i = event.signal.index();
+            if state.values[i] == event.value {
+                continue;
+            }
+            state.values[i] = event.value;
+            if let Role::Actuator(a) = self.role[i] {
+                state.last[a] = Some((event.t, event.value));
+                self.actuator_edges[a] += 1;
+                let row = self.pair(a, 0);
+                state.matched[row..row + self.sensors.len()].fill(false);
+            }
+        }
+        scan.clear();
+        state.scan = scan;
+    }
+
+    fn sensor_edge(&mut self, state: &mut LogState, s: usize, t: Time, rising: bool) {
+        let d = usize::from(rising);
+        self.edges[s][d] += 1;
+        for a in 0..self.actuators.len() {
+            let p = self.pair(a, s);
+            let Some((t_a, a_rising)) = state.last[a] else {
+                continue;
+            };
+            if state.matched[p] {
+                continue;
+            }
+            state.matched[p] = true;
+            let delay = t - t_a;
+            if delay > self.max_delay {
+                continue;
+            }
+            self.followers[p][d] += 1;
+            let k = p * 4 + usize::from(a_rising) * 2 + d;
+            let bins = self.bins;
+            let h =
+                self.histograms[k].get_or_insert_with(|| vec![0; bins.count].into_boxed_slice());
+            let b = bins.bin(delay);
+            h[b] = h[b].saturating_add(1);
+            self.counts[k] += 1;
+        }
+    }
+
+    /// The evidence for `s` following `a`, if it is a candidate.
+    fn candidate(&self, a: usize, s: usize, options: &SuggestOptions) -> Option<SensorEvidence> {
+        let p = self.pair(a, s);
+        let edges = self.edges[s];
+        if edges[0] + edges[1] < options.min_edges {
+            return None;
+        }
+        let followers = self.followers[p];
+        for d in 0..2 {
+            if edges[d] > 0 && (followers[d] as f64) < options.follower_share * edges[d] as f64 {
+                return None;
+            }
+        }
+        let mut delays = Vec::new();
+        let (mut weighted, mut weight) = (0f64, 0u64);
+        for k in 0..4 {
+            let (a_rising, d) = (k / 2 == 1, k % 2);
+            let count = self.counts[p * 4 + k];
+            let Some(h) = &self.histograms[p * 4 + k] else {
+                continue;
+            };
+            if count == 0 || (count as f64) < options.min_pair_share * edges[d] as f64 {
+                continue;
+            }
+            let q = |x| self.bins.quantile(h, count, x);
+            let (q05, q50, q95) = (q(0.05), q(0.5), q(0.95));
+            let allowed = (options.spread_ratio * q50 as f64).max(options.min_spread as f64);
+            if (q95 - q05) as f64 > allowed {
+                return None;
+            }
+            weighted += q50 as f64 * count as f64;
+            weight += count;
+            delays.push(DelayStats {
+                actuator_rising: a_rising,
+                sensor_rising: d == 1,
+                count,
+                q05,
+                q50,
+                q95,
+            });
+        }
+        if weight == 0 {
+            return None;
+        }
+        Some(SensorEvidence {
+            sensor: self.sensors[s],
+            actuator: self.actuators[a],
+            edges,
+            followers,
+            actuator_edges: self.actuator_edges[a],
+            delays,
+            typical_delay: (weighted / weight as f64).round() as Time,
+        })
+    }
+
+    fn parts(&self, signals: &SignalTable, options: &SuggestOptions) -> Vec<SuggestedPart> {
+        let mut parts: Vec<SuggestedPart> = self
+            .actuators
+            .iter()
+            .map(|&a| SuggestedPart {
+                name: format!("part_{}", signals.name(a)),
+                actuators: vec![a],
+                sensors: Vec::new(),
+                evidence: Vec::new(),
+            })
+            .collect();
+        for s in 0..self.sensors.len() {
+            let candidates: Vec<(usize, SensorEvidence)> = (0..self.actuators.len())
+                .filter_map(|a| self.candidate(a, s, options).map(|e| (a, e)))
+                .collect();
+            let top = candidates
+                .iter()
+                .map(|(_, e)| e.actuator_share())
+                .fold(0.0, f64::max);
+            let best = candidates
+                .into_iter()
+                .filter(|(_, e)| e.actuator_share() >= top - options.share_tie)
+                // Shortest typical delay; the earlier actuator on a tie.
+                .min_by_key(|(a, e)| (e.typical_delay, *a));
+            if let Some((a, evidence)) = best {
+                parts[a].sensors.push(self.sensors[s]);
+                parts[a].evidence.push(evidence);
+            }
+        }
+        parts
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bins_are_two_percent_wide() {
+        let bins = Bins::new(10 * SECOND);
+        for d in [MS, 80 * MS, 2_925 * MS, 10 * SECOND] {
+            let v = bins.value(bins.bin(d));
+            assert!((v - d).abs() as f64 <= 0.011 * d as f64, "{d} ns → {v} ns");
+        }
+        assert_eq!(bins.bin(1), 0);
+        assert!(bins.count < 700, "{} bins", bins.count);
+    }
+
+    #[test]
+    fn quantiles_of_a_histogram() {
+        let bins = Bins::new(10 * SECOND);
+        let mut h = vec![0u32; bins.count];
+        for ms in 1..=100 {
+            h[bins.bin(ms * MS)] += 1;
+        }
+        let near = |t: Time, ms: Time| (t - ms * MS).abs() as f64 <= 0.02 * (ms * MS) as f64;
+        assert!(near(bins.quantile(&h, 100, 0.05), 5));
+        assert!(near(bins.quantile(&h, 100, 0.5), 50));
+        assert!(near(bins.quantile(&h, 100, 0.95), 95));
+    }
+
+    #[test]
+    fn delays_are_shown_to_their_precision() {
+        assert_eq!(approx_ms(2_936_224_312), "2936 ms");
+        assert_eq!(approx_ms(79_902_059), "79.9 ms");
+        assert_eq!(approx_ms(1_234_567), "1.23 ms");
+    }
+
+    #[test]
+    fn toml_strings_are_escaped() {
+        assert_eq!(toml_string("part_A4"), "\"part_A4\"");
+        assert_eq!(toml_string("a\"b\\c\n"), "\"a\\\"b\\\\c\\u000A\"");
+    }
+}

@@ -20,7 +20,12 @@ fn simulate(duration: Time, seed: u64, faults: &[&str]) -> MemorySink {
         .collect();
     let mut line = SortingLine::new(SortingConfig::default());
     let mut ctl = SynthesisedControl::new(line.ids());
-    let cfg = SimConfig { duration, scan_period: 10 * MS, seed, faults };
+    let cfg = SimConfig {
+        duration,
+        scan_period: 10 * MS,
+        seed,
+        faults,
+    };
     let mut sink = MemorySink::default();
     run(&mut line, &mut ctl, &cfg, &mut sink, |_| {}).expect("runs");
     sink
@@ -43,7 +48,9 @@ fn learn(sinks: &[&MemorySink]) -> Model {
     let plant = plant();
     let mut learner = Learner::new(&plant, LearnOptions::default()).expect("learner");
     for (i, s) in sinks.iter().enumerate() {
-        learner.learn_log(stream(s, &format!("run{i}")), |_| {}).expect("learns");
+        learner
+            .learn_log(stream(s, &format!("run{i}")), |_| {})
+            .expect("learns");
     }
     learner.finish()
 }
@@ -59,11 +66,26 @@ fn turntable_guards_match_the_seed() {
     for t in &tt.transitions {
         eprintln!(
             "{:>16} clock {:>8} n {:>4} min {:>6} q50 {:>6} max {:>6} guard [{}, {}] timed {}",
-            t.event, t.clock, t.count, t.guard.min, t.guard.q50, t.guard.max, t.guard.lo, t.guard.hi, t.timed
+            t.event,
+            t.clock,
+            t.count,
+            t.guard.min,
+            t.guard.q50,
+            t.guard.max,
+            t.guard.lo,
+            t.guard.hi,
+            t.timed
         );
     }
     for e in &tt.estimates {
-        eprintln!("{} {:?}", e.actuators, e.intervals.iter().map(|i| (&i.name, i.from, i.to)).collect::<Vec<_>>());
+        eprintln!(
+            "{} {:?}",
+            e.actuators,
+            e.intervals
+                .iter()
+                .map(|i| (&i.name, i.from, i.to))
+                .collect::<Vec<_>>()
+        );
         for s in &e.sensors {
             eprintln!("   {} {:?}", s.sensor, s.values);
         }
@@ -73,15 +95,27 @@ fn turntable_guards_match_the_seed() {
     }
     eprintln!("untimed: {:#?}", tt.untimed);
     let guard = |event: &str| {
-        tt.transitions.iter().find(|t| t.event == event).map(|t| t.guard).expect(event)
+        tt.transitions
+            .iter()
+            .find(|t| t.event == event)
+            .map(|t| t.guard)
+            .expect(event)
     };
     // Seed 002: FE(C4) in [~30, 130], RE(C5) in [2900, 2950] after RE(A4);
     // FE(C5) within 150, RE(C4) in [2880, 2970] after FE(A4). One scan (10 ms)
     // is the default margin.
     let within = |event: &str, lo: f64, hi: f64| {
         let g = guard(event);
-        assert!(g.min >= lo && g.max <= hi, "{event}: learned [{}, {}] not within [{lo}, {hi}]", g.min, g.max);
-        assert!((g.lo - (g.min - 10.0)).abs() < 1e-9 && (g.hi - (g.max + 10.0)).abs() < 1e-9, "{event}: margin");
+        assert!(
+            g.min >= lo && g.max <= hi,
+            "{event}: learned [{}, {}] not within [{lo}, {hi}]",
+            g.min,
+            g.max
+        );
+        assert!(
+            (g.lo - (g.min - 10.0)).abs() < 1e-9 && (g.hi - (g.max + 10.0)).abs() < 1e-9,
+            "{event}: margin"
+        );
     };
     within("FE(C4)", 20.0, 130.0);
     within("RE(C5)", 2900.0, 2950.0);
@@ -106,9 +140,21 @@ fn a_model_accepts_another_normal_run_and_catches_f2() {
     let f2 = simulate(900 * SECOND, 7, &["F2@602s"]);
     let violations = check(&model, &plant, stream(&f2, "f2")).expect("checks");
     let a4 = plant.signals.id("A4").expect("A4");
-    let rise = f2.events.iter().find(|e| e.signal == a4 && e.value && e.t >= onset).expect("RE(A4)");
-    let first = violations.iter().find(|v| v.part == "turntable").expect("turntable violation");
+    let rise = f2
+        .events
+        .iter()
+        .find(|e| e.signal == a4 && e.value && e.t >= onset)
+        .expect("RE(A4)");
+    let first = violations
+        .iter()
+        .find(|v| v.part == "turntable")
+        .expect("turntable violation");
     eprintln!("{first:?}");
-    assert!(first.t > rise.t && first.t <= rise.t + 150 * MS, "first violation at {} ms, RE(A4) at {} ms", first.t / MS, rise.t / MS);
+    assert!(
+        first.t > rise.t && first.t <= rise.t + 150 * MS,
+        "first violation at {} ms, RE(A4) at {} ms",
+        first.t / MS,
+        rise.t / MS
+    );
     assert!(first.message.contains("FE(C4)"), "{}", first.message);
 }

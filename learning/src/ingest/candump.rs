@@ -331,10 +331,7 @@ pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogSt
     // no more frames belong to the time of the last first value.
     let mut start = None;
     let mut opened_at: Time = Time::MIN;
-    loop {
-        let Some(frame) = reader.read_frame()? else {
-            break;
-        };
+    while let Some(frame) = reader.read_frame()? {
         start.get_or_insert(frame.t);
         let complete = reader.decoder.is_complete();
         reader.apply(&frame)?;
@@ -440,7 +437,10 @@ impl<R: BufRead> Reader<R> {
                 ));
             }
             let text = std::str::from_utf8(&self.buf).map_err(|e| {
-                self.error(e.valid_up_to() + 1, "not text (invalid UTF-8): this is not a candump -L log")
+                self.error(
+                    e.valid_up_to() + 1,
+                    "not text (invalid UTF-8): this is not a candump -L log",
+                )
             })?;
             let text = if self.line == 1 {
                 text.trim_start_matches('\u{feff}')
@@ -583,7 +583,10 @@ fn parse_line(line: &str) -> Result<Option<Frame>, (usize, String)> {
     };
     if let Some((column, extra)) = fields.next() {
         if !matches!(extra, "R" | "T") || fields.next().is_some() {
-            return Err((column, format!("unexpected '{}' after the frame", shown(extra))));
+            return Err((
+                column,
+                format!("unexpected '{}' after the frame", shown(extra)),
+            ));
         }
     }
     let data = parse_frame(frame, frame_column)?;
@@ -826,7 +829,10 @@ mod tests {
 
     #[test]
     fn parses_the_frame_forms() {
-        let frame = |l: &str| parse_line(l).map(|f| f.map(|f| (f.t, f.data.map(|(id, p)| (id, p.bytes[..p.len].to_vec())))));
+        let frame = |l: &str| {
+            parse_line(l)
+                .map(|f| f.map(|f| (f.t, f.data.map(|(id, p)| (id, p.bytes[..p.len].to_vec())))))
+        };
         assert_eq!(
             frame("(1.5) can0 181#0102"),
             Ok(Some((1_500_000_000, Some((0x181, vec![1, 2])))))
@@ -837,12 +843,18 @@ mod tests {
         );
         assert_eq!(frame("(3) can0 181#R"), Ok(Some((3_000_000_000, None))));
         assert_eq!(frame("(3) can0 181#R5_C"), Ok(Some((3_000_000_000, None))));
-        assert_eq!(frame("(3) can0 20000080#0000000000000000"), Ok(Some((3_000_000_000, None))));
+        assert_eq!(
+            frame("(3) can0 20000080#0000000000000000"),
+            Ok(Some((3_000_000_000, None)))
+        );
         assert_eq!(
             frame("(4) can0 181#01.02.03_D"),
             Ok(Some((4_000_000_000, Some((0x181, vec![1, 2, 3])))))
         );
-        assert_eq!(frame("(4) can0 181#"), Ok(Some((4_000_000_000, Some((0x181, vec![]))))));
+        assert_eq!(
+            frame("(4) can0 181#"),
+            Ok(Some((4_000_000_000, Some((0x181, vec![])))))
+        );
         assert_eq!(frame("   "), Ok(None));
     }
 
@@ -877,11 +889,19 @@ mod tests {
         batcher.change(6, a, true);
         assert_eq!(
             batcher.take_full(),
-            Some(vec![Event { t: 5, signal: b, value: true }])
+            Some(vec![Event {
+                t: 5,
+                signal: b,
+                value: true
+            }])
         );
         assert_eq!(
             batcher.finish(),
-            Some(vec![Event { t: 6, signal: a, value: true }])
+            Some(vec![Event {
+                t: 6,
+                signal: a,
+                value: true
+            }])
         );
         assert_eq!(batcher.finish(), None);
     }

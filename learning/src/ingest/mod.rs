@@ -3,10 +3,30 @@
 //! Whatever the form, a log is opened as a [`LogStream`]: the initial value of
 //! every signal, then batches of [`Event`]s sorted by `(t, signal)`, with `t`
 //! non-decreasing from one batch to the next. Only real changes are events.
+//!
+//! [`open`] detects the form ([`detect_format`]) unless it is given, then reads
+//! CSV and Parquet logs of the events, intervals and scans forms with polars,
+//! batch by batch (memory does not grow with the log), and hands `candump -L`
+//! and VCD logs to [`candump`] and [`vcd`]. Every form of the same recording
+//! gives the same initial values and the same events, the ones
+//! `diagnoser::log`'s readers give. [`write_intervals_parquet`] writes the
+//! archive form as Parquet.
+//!
+//! Errors are one-line [`Located`] errors naming the file, line, column and
+//! field. In a Parquet file, the "line" of a row is its 1-based row number plus
+//! one (as if the column names were line 1), and the column is the 1-based index
+//! of the column in the file's schema.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use diagnoser::{Event, Located, Time, TimeFormat, TimeUnit};
+use diagnoser::{Event, Located, Plant, Time, TimeFormat, TimeUnit};
+
+mod archive;
+mod columnar;
+mod detect;
+
+pub use archive::write_intervals_parquet;
+pub use detect::detect_format;
 
 /// The forms of log gardefou reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -38,11 +58,20 @@ pub struct IngestOptions {
     pub time_unit: TimeUnit,
     /// Roughly how many events (or rows) to decode per batch; bounds memory.
     pub batch_rows: usize,
+    /// CSV logs larger than this many bytes are read with a buffered streaming
+    /// reader instead of polars, which maps the whole file into memory: resident
+    /// memory then stays flat however long the log.
+    pub memory_budget: u64,
 }
 
 impl Default for IngestOptions {
     fn default() -> Self {
-        IngestOptions { format: None, time_unit: TimeUnit::Ms, batch_rows: 1 << 20 }
+        IngestOptions {
+            format: None,
+            time_unit: TimeUnit::Ms,
+            batch_rows: 1 << 16,
+            memory_budget: 512 << 20,
+        }
     }
 }
 
@@ -76,5 +105,55 @@ impl std::fmt::Debug for LogStream {
     }
 }
 
+/// Opens the log at `path`, of the form `options.format` or else the detected
+/// one ([`detect_format`]), for the signals of `plant`.
+///
+/// CSV and Parquet logs of the three forms are read with polars' streaming
+/// engine in frames of about `options.batch_rows` rows, each decoded into events
+/// as it comes, so memory is bounded by a few batches whatever the size of the
+/// log. The initial values are read before this returns; the first batch may
+/// then hold events read meanwhile. The intervals form is read twice (first to
+/// check it and find the initial values, which come last in an archive); it
+/// streams when its closed intervals are in `t_end` order (as archives are
+/// written) or its rows in `t_start` order, and otherwise sorts its changes in
+/// memory (16 bytes per change). `candump -L` and VCD logs are read by
+/// [`candump::open`] and [`vcd::open`].
+///
+/// Events and scans CSV files larger than `options.memory_budget` are read by
+/// a buffered streaming reader on a thread of its own instead (flat resident
+/// memory, the same events and errors).
+///
+/// Numeric timestamps are in `options.time_unit`; text timestamps may be RFC
+/// 3339 (detected from the first one, as [`TimeFormat::detect`] does). Parquet
+/// time columns may hold integers or floats in the unit, or text; value columns
+/// booleans, integers 0 and 1, or text `0`, `1`, `true`, `false`.
+///
+/// Errors, before or during the batches, are one line naming the file, line,
+/// column and field: a missing column, a value that is not boolean, time going
+/// backwards, an unknown signal, a time that cannot be parsed, a missing initial
+/// value... For CSV, they are the errors of `diagnoser::log`'s exact readers;
+/// for Parquet, see the module documentation for what line and column mean.
+pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
+    let format = match options.format {
+        Some(format) => format,
+        None => detect_format(path)?,
+    };
+    let large = std::fs::metadata(path).is_ok_and(|m| m.len() > options.memory_budget);
+    match format {
+        LogFormat::EventsCsv | LogFormat::ScansCsv if large => {
+            buffered::open(path, plant, options, format)
+        }
+        LogFormat::Candump => candump::open(path, plant, options),
+        LogFormat::Vcd => vcd::open(path, plant, options),
+        LogFormat::EventsCsv
+        | LogFormat::IntervalsCsv
+        | LogFormat::ScansCsv
+        | LogFormat::EventsParquet
+        | LogFormat::IntervalsParquet
+        | LogFormat::ScansParquet => columnar::open(path, plant, options, format),
+    }
+}
+
+mod buffered;
 pub mod candump;
 pub mod vcd;

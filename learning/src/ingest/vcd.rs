@@ -61,7 +61,14 @@ use super::{IngestOptions, LogFormat, LogStream};
 const MAX_TOKEN: usize = 1 << 16;
 
 /// Variable types that are never a PLC's boolean signal.
-const NOT_BOOLEAN: [&str; 6] = ["real", "realtime", "integer", "parameter", "event", "string"];
+const NOT_BOOLEAN: [&str; 6] = [
+    "real",
+    "realtime",
+    "integer",
+    "parameter",
+    "event",
+    "string",
+];
 
 /// Header commands, out of place among the value changes.
 const HEADER_ONLY: [&str; 7] = [
@@ -90,9 +97,8 @@ pub fn looks_like(head: &str) -> bool {
 /// timestamps are never split between batches). `options.time_unit` is not
 /// used: the dump's `$timescale` gives the unit.
 pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
-    let file = File::open(path).map_err(|e| {
-        Located::new(Location::new(path, 0, 0), format!("cannot open log: {e}"))
-    })?;
+    let file = File::open(path)
+        .map_err(|e| Located::new(Location::new(path, 0, 0), format!("cannot open log: {e}")))?;
     let mut reader = Reader::new(BufReader::new(file), path, plant, options.batch_rows);
     let unit = reader.header(plant)?;
 
@@ -212,7 +218,8 @@ impl<R: BufRead> Tokens<R> {
                 "not text (invalid UTF-8): this is not a VCD file",
             ));
         }
-        if self.tok_line == 1 && self.tok_column == 1 && self.tok.starts_with("\u{feff}".as_bytes()) {
+        if self.tok_line == 1 && self.tok_column == 1 && self.tok.starts_with("\u{feff}".as_bytes())
+        {
             // A byte-order mark before the first token.
             self.tok.drain(..3);
             if self.tok.is_empty() {
@@ -244,11 +251,7 @@ impl<R: BufRead> Tokens<R> {
         let mut out = Vec::new();
         loop {
             if !self.next()? {
-                return Err(self.error_at(
-                    line,
-                    column,
-                    format!("{command} has no $end"),
-                ));
+                return Err(self.error_at(line, column, format!("{command} has no $end")));
             }
             if self.tok == b"$end" {
                 return Ok(out);
@@ -256,7 +259,10 @@ impl<R: BufRead> Tokens<R> {
             if out.len() < keep {
                 out.push((self.text().to_string(), self.tok_line, self.tok_column));
             } else if keep > 0 {
-                return Err(self.error(format!("unexpected '{}' in {command}: expected $end", shown(self.text()))));
+                return Err(self.error(format!(
+                    "unexpected '{}' in {command}: expected $end",
+                    shown(self.text())
+                )));
             }
         }
     }
@@ -397,6 +403,8 @@ impl<R: BufRead> Reader<R> {
         let parts = self.tokens.until_end(2)?;
         let (line, column) = parts.first().map_or((line, column), |p| (p.1, p.2));
         let text: String = parts.iter().map(|p| p.0.as_str()).collect();
+        let written: Vec<&str> = parts.iter().map(|p| p.0.as_str()).collect();
+        let written = written.join(" ");
         let digits = text.len() - text.trim_start_matches(|c: char| c.is_ascii_digit()).len();
         let (number, unit) = text.split_at(digits);
         let bad = || {
@@ -405,7 +413,7 @@ impl<R: BufRead> Reader<R> {
                 column,
                 format!(
                     "bad timescale '{}': expected 1, 10 or 100 followed by s, ms, us, ns, ps or fs",
-                    shown(&text)
+                    shown(&written)
                 ),
             )
         };
@@ -450,7 +458,10 @@ impl<R: BufRead> Reader<R> {
             self.tokens.error_at(
                 size.1,
                 size.2,
-                format!("bad size '{}' in $var: expected a number of bits", shown(&size.0)),
+                format!(
+                    "bad size '{}' in $var: expected a number of bits",
+                    shown(&size.0)
+                ),
             )
         })?;
         let var = if width != 1 || NOT_BOOLEAN.contains(&kind.0.as_str()) {
@@ -530,12 +541,18 @@ impl<R: BufRead> Reader<R> {
                 let (line, column) = (self.tokens.tok_line, self.tokens.tok_column);
                 let code = self.tokens.tok[1..].to_vec();
                 if code.is_empty() {
-                    return Err(self.tokens.error(format!(
-                        "missing identifier code after '{}'",
-                        first as char
-                    )));
+                    return Err(self
+                        .tokens
+                        .error(format!("missing identifier code after '{}'", first as char)));
                 }
-                self.assign(&code, value, &(first as char).to_string(), line, column + 1)?;
+                let shown_value = (first as char).to_string();
+                self.assign(
+                    &code,
+                    value,
+                    &shown_value,
+                    (line, column),
+                    (line, column + 1),
+                )?;
                 Ok(Step::Other)
             }
             b'b' | b'B' | b'r' | b'R' => {
@@ -581,7 +598,8 @@ impl<R: BufRead> Reader<R> {
                     )),
                     (Some(Var::Signals(_)), Ok(value)) => {
                         let shown_value = format!("{}{text}", first as char);
-                        self.assign(&code, value, &shown_value, line, column)?;
+                        let code_at = (code_line, code_column);
+                        self.assign(&code, value, &shown_value, (line, column), code_at)?;
                         Ok(Step::Other)
                     }
                 }
@@ -650,21 +668,21 @@ impl<R: BufRead> Reader<R> {
         Ok(t)
     }
 
-    /// Gives the signals of `code` `value` (`None`: x or z), shown as `shown_value`
-    /// at `line`, `column` in messages.
+    /// Gives the signals of `code` `value` (`None`: x or z), written `shown_value`
+    /// at line and column `value_at`, the code at `code_at`.
     fn assign(
         &mut self,
         code: &[u8],
         value: Option<bool>,
         shown_value: &str,
-        line: usize,
-        column: usize,
+        value_at: (usize, usize),
+        code_at: (usize, usize),
     ) -> Result<(), Located> {
         let signals = match self.vars.get(code) {
             None => {
                 return Err(self.tokens.error_at(
-                    line,
-                    column,
+                    code_at.0,
+                    code_at.1,
                     format!(
                         "identifier code '{}' is not declared by any $var",
                         shown(&String::from_utf8_lossy(code))
@@ -675,10 +693,12 @@ impl<R: BufRead> Reader<R> {
             Some(Var::Signals(signals)) => signals,
         };
         let Some(value) = value else {
-            let name = signals.first().map_or("?", |s| self.names[s.index()].as_str());
+            let name = signals
+                .first()
+                .map_or("?", |s| self.names[s.index()].as_str());
             return Err(self.tokens.error_at(
-                line,
-                column.saturating_sub(1).max(1),
+                value_at.0,
+                value_at.1,
                 format!(
                     "value '{shown_value}' of signal '{name}' is not 0 or 1: unknown (x) and high-impedance (z) values are not supported"
                 ),

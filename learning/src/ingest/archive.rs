@@ -1,0 +1,201 @@
+//! Writing the archive (intervals) form as Parquet.
+
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+
+use diagnoser::log::EventLog;
+use diagnoser::{SignalTable, Time, TimeFormat, TimeUnit};
+use polars::prelude::{Column, DataFrame, DataType, Field, ParquetWriter, PolarsError, Schema};
+
+/// Rows per Parquet row group: memory holds one group's columns at a time.
+const ROWS_PER_GROUP: usize = 1 << 16;
+
+/// Writes `log` in the intervals (archive) form as a Parquet file at `path`.
+///
+/// Columns: `signal` (text), `value` (boolean), `t_start` and `t_end`. Times are
+/// written as the log writes them ([`EventLog::format`]): for numbers in a unit,
+/// `Int64` counts of that unit — a time that is not a whole number of the unit
+/// is an `InvalidInput` error (write the log in a finer unit); for RFC 3339
+/// logs, RFC 3339 text. `t_end` is nullable, as the form allows open intervals,
+/// but this writer closes the last interval of every signal at `end`, the end of
+/// the recording, which must not be before the log's last event or its start.
+///
+/// Rows come in `t_end` order (a row is written when its interval closes, as
+/// `diagnoser::log::IntervalWriter` does), which [`super::open`] reads back in
+/// bounded memory; memory here is bounded by one row group. Reading the file
+/// with [`super::open`] gives back `log.start`, `log.initial` and `log.events`.
+pub fn write_intervals_parquet(
+    log: &EventLog,
+    signals: &SignalTable,
+    path: &Path,
+    end: Time,
+) -> io::Result<()> {
+    let invalid = |message: String| io::Error::new(io::ErrorKind::InvalidInput, message);
+    if log.initial.len() != signals.len() {
+        return Err(invalid(format!(
+            "{} initial values for {} signals",
+            log.initial.len(),
+            signals.len()
+        )));
+    }
+    let last = log.events.last().map_or(log.start, |e| e.t.max(log.start));
+    if end < last {
+        return Err(invalid(format!(
+            "the end of the recording, {}, is before the log's last time {}",
+            log.format.format(end),
+            log.format.format(last)
+        )));
+    }
+    let times = Times::new(log.format);
+    let schema = Schema::from_iter([
+        Field::new("signal".into(), DataType::String),
+        Field::new("value".into(), DataType::Boolean),
+        Field::new("t_start".into(), times.dtype()),
+        Field::new("t_end".into(), times.dtype()),
+    ]);
+    let mut out = BufWriter::new(File::create(path)?);
+    let mut writer = ParquetWriter::new(&mut out)
+        .batched(&schema)
+        .map_err(polars_error)?;
+    let mut rows = Rows::default();
+    // Each signal's open interval: value and start.
+    let mut open: Vec<(bool, Time)> = log.initial.iter().map(|&v| (v, log.start)).collect();
+    for event in &log.events {
+        let i = event.signal.index();
+        let Some(interval) = open.get_mut(i) else {
+            return Err(invalid(format!("no signal with id {}", event.signal.0)));
+        };
+        if interval.0 == event.value {
+            continue;
+        }
+        if event.t < interval.1 {
+            return Err(invalid(format!(
+                "events out of order: signal '{}' changes at {}, before {}",
+                signals.name(event.signal),
+                log.format.format(event.t),
+                log.format.format(interval.1)
+            )));
+        }
+        rows.push(
+            signals.name(event.signal),
+            interval.0,
+            interval.1,
+            event.t,
+            &times,
+        )?;
+        *interval = (event.value, event.t);
+        if rows.len() >= ROWS_PER_GROUP {
+            writer
+                .write_batch(&rows.take(&times)?)
+                .map_err(polars_error)?;
+        }
+    }
+    for (id, signal) in signals.iter() {
+        if let Some(&(value, start)) = open.get(id.index()) {
+            rows.push(&signal.name, value, start, end, &times)?;
+        }
+    }
+    writer
+        .write_batch(&rows.take(&times)?)
+        .map_err(polars_error)?;
+    writer.finish().map_err(polars_error)?;
+    drop(writer);
+    out.flush()
+}
+
+fn polars_error(e: PolarsError) -> io::Error {
+    io::Error::other(e.to_string())
+}
+
+/// How times are stored: whole numbers of a unit, or RFC 3339 text.
+#[derive(Debug, Clone, Copy)]
+enum Times {
+    Units(TimeUnit),
+    Text,
+}
+
+impl Times {
+    fn new(format: TimeFormat) -> Times {
+        match format {
+            TimeFormat::Numeric(unit) => Times::Units(unit),
+            TimeFormat::Rfc3339 => Times::Text,
+        }
+    }
+
+    fn dtype(self) -> DataType {
+        match self {
+            Times::Units(_) => DataType::Int64,
+            Times::Text => DataType::String,
+        }
+    }
+}
+
+/// The columns of the rows not yet written.
+#[derive(Default)]
+struct Rows {
+    signal: Vec<String>,
+    value: Vec<bool>,
+    start: Vec<i64>,
+    end: Vec<i64>,
+}
+
+impl Rows {
+    fn len(&self) -> usize {
+        self.signal.len()
+    }
+
+    fn push(
+        &mut self,
+        signal: &str,
+        value: bool,
+        start: Time,
+        end: Time,
+        times: &Times,
+    ) -> io::Result<()> {
+        if let Times::Units(unit) = times {
+            for t in [start, end] {
+                if t % unit.nanos() != 0 {
+                    return Err(io::Error::new(
+                        io::ErrorKind::InvalidInput,
+                        format!(
+                            "time {} {unit} is not a whole number of {unit}: write the log in a finer unit",
+                            unit.format(t)
+                        ),
+                    ));
+                }
+            }
+        }
+        self.signal.push(signal.to_string());
+        self.value.push(value);
+        self.start.push(start);
+        self.end.push(end);
+        Ok(())
+    }
+
+    /// The rows as a frame, leaving none.
+    fn take(&mut self, times: &Times) -> io::Result<DataFrame> {
+        let height = self.len();
+        let time_column = |name: &str, values: Vec<i64>| match times {
+            Times::Units(unit) => {
+                let n = unit.nanos();
+                let units: Vec<Option<i64>> = values.into_iter().map(|t| Some(t / n)).collect();
+                Column::new(name.into(), units)
+            }
+            Times::Text => {
+                let text: Vec<Option<String>> = values
+                    .into_iter()
+                    .map(|t| Some(TimeFormat::Rfc3339.format(t)))
+                    .collect();
+                Column::new(name.into(), text)
+            }
+        };
+        let columns = vec![
+            Column::new("signal".into(), std::mem::take(&mut self.signal)),
+            Column::new("value".into(), std::mem::take(&mut self.value)),
+            time_column("t_start", std::mem::take(&mut self.start)),
+            time_column("t_end", std::mem::take(&mut self.end)),
+        ];
+        DataFrame::new(height, columns).map_err(polars_error)
+    }
+}

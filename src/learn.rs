@@ -1,0 +1,282 @@
+//! `gardefou learn`: learn one timed model per plant part from logs.
+
+use std::fs;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+
+use clap::{Args, ValueEnum};
+use diagnoser::model::Model;
+use diagnoser::{Plant, Time, TimeUnit, time};
+use indicatif::{ProgressBar, ProgressStyle};
+use learning::check::check;
+use learning::dot::part_to_dot;
+use learning::ingest::{IngestOptions, LogFormat, open};
+use learning::learn::{LearnOptions, Learner};
+use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
+
+use crate::Failure;
+
+/// Log forms, as named on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FormatArg {
+    /// Detect from the file's header.
+    Auto,
+    /// `t,signal,value` CSV.
+    EventsCsv,
+    /// `signal,value,t_start,t_end` CSV.
+    IntervalsCsv,
+    /// `t,<signals>` CSV.
+    ScansCsv,
+    /// Events as Parquet.
+    EventsParquet,
+    /// Intervals as Parquet.
+    IntervalsParquet,
+    /// Scans as Parquet.
+    ScansParquet,
+    /// `candump -L` output.
+    Candump,
+    /// Value change dump.
+    Vcd,
+}
+
+impl FormatArg {
+    fn format(self) -> Option<LogFormat> {
+        Some(match self {
+            FormatArg::Auto => return None,
+            FormatArg::EventsCsv => LogFormat::EventsCsv,
+            FormatArg::IntervalsCsv => LogFormat::IntervalsCsv,
+            FormatArg::ScansCsv => LogFormat::ScansCsv,
+            FormatArg::EventsParquet => LogFormat::EventsParquet,
+            FormatArg::IntervalsParquet => LogFormat::IntervalsParquet,
+            FormatArg::ScansParquet => LogFormat::ScansParquet,
+            FormatArg::Candump => LogFormat::Candump,
+            FormatArg::Vcd => LogFormat::Vcd,
+        })
+    }
+}
+
+/// Arguments of `gardefou learn`.
+#[derive(Debug, Args)]
+pub struct LearnArgs {
+    /// Plant file: signals and parts (with --suggest-parts, only the signals).
+    #[arg(long)]
+    plant: PathBuf,
+    /// Logs of normal operation (any form; several are combined).
+    #[arg(required = true, value_name = "LOG")]
+    logs: Vec<PathBuf>,
+    /// Where to write the model.
+    #[arg(short = 'o', long, default_value = "model.json")]
+    output: PathBuf,
+    /// Log form.
+    #[arg(long, value_enum, default_value = "auto")]
+    format: FormatArg,
+    /// Unit of numeric timestamps in the logs (default: the plant file's).
+    #[arg(long)]
+    time_unit: Option<TimeUnit>,
+    /// Absolute widening of each guard on each side (default: one scan period).
+    #[arg(long, value_parser = time::parse_duration)]
+    margin: Option<Time>,
+    /// Relative widening of each guard on each side, as a fraction of its width.
+    #[arg(long, default_value_t = 0.0)]
+    margin_rel: f64,
+    /// Share of samples dropped on each side of each guard (outliers), e.g. 0.001.
+    #[arg(long, default_value_t = 0.0)]
+    trim: f64,
+    /// Also write one Graphviz file per part into this directory.
+    #[arg(long, value_name = "DIR")]
+    dot: Option<PathBuf>,
+    /// Replay these logs against the learned model and list every violation.
+    #[arg(long = "check", value_name = "LOG")]
+    checks: Vec<PathBuf>,
+    /// Do not learn: suggest [[parts]] (actuators with the sensors that follow them).
+    #[arg(long)]
+    suggest_parts: bool,
+    /// Print nothing but errors.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+fn bad(e: impl std::fmt::Display) -> Failure {
+    Failure::BadInput(e.to_string())
+}
+
+/// Runs `gardefou learn`.
+pub fn run(args: LearnArgs) -> Result<(), Failure> {
+    let plant = Plant::from_path(&args.plant).map_err(bad)?;
+    if !(0.0..0.5).contains(&args.trim) {
+        return Err(bad(format!(
+            "bad --trim {}: expected a share in [0, 0.5)",
+            args.trim
+        )));
+    }
+    if !(args.margin_rel.is_finite() && args.margin_rel >= 0.0) {
+        return Err(bad(format!(
+            "bad --margin-rel {}: expected a fraction >= 0",
+            args.margin_rel
+        )));
+    }
+    let ingest = IngestOptions {
+        format: args.format.format(),
+        time_unit: args.time_unit.unwrap_or(plant.time_unit),
+        ..IngestOptions::default()
+    };
+    let bar = progress_bar();
+
+    if args.suggest_parts {
+        let mut streams = Vec::new();
+        for path in &args.logs {
+            streams.push(open(path, &plant, &ingest).map_err(bad)?);
+        }
+        let parts =
+            suggest_parts(&plant.signals, streams, &SuggestOptions::default()).map_err(bad)?;
+        bar.finish_and_clear();
+        print!("{}", to_toml(&parts, &plant.signals));
+        return Ok(());
+    }
+
+    let options = LearnOptions {
+        margin: args.margin,
+        margin_relative: args.margin_rel,
+        trim: args.trim,
+        ..LearnOptions::default()
+    };
+    let mut learner = Learner::new(&plant, options).map_err(bad)?;
+    let mut total = 0u64;
+    for path in &args.logs {
+        let stream = open(path, &plant, &ingest).map_err(bad)?;
+        let before = total;
+        learner
+            .learn_log(stream, |n| {
+                bar.set_position(before + n);
+            })
+            .map_err(bad)?;
+        total = bar.position();
+    }
+    let unassigned = learner.unassigned_sensors().join(", ");
+    let model = learner.finish();
+    bar.finish_and_clear();
+
+    write_atomic(
+        &args.output,
+        &serde_json::to_vec_pretty(&model).map_err(|e| Failure::Io(e.to_string()))?,
+    )?;
+    if let Some(dir) = &args.dot {
+        fs::create_dir_all(dir)
+            .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
+        for part in &model.parts {
+            write_atomic(
+                &dir.join(format!("{}.dot", part.name)),
+                part_to_dot(&model, part).as_bytes(),
+            )?;
+        }
+    }
+    if !args.quiet {
+        print_report(&model);
+        if !unassigned.is_empty() {
+            eprintln!("note: sensors in no part, not learned: {unassigned}");
+        }
+        eprintln!(
+            "learned {} part(s) from {} event(s) over {} {}; wrote {}",
+            model.parts.len(),
+            model.learned_from.events,
+            model.learned_from.duration,
+            model.time_unit,
+            args.output.display()
+        );
+    }
+
+    for path in &args.checks {
+        let stream = open(path, &plant, &ingest).map_err(bad)?;
+        let found = check(&model, &plant, stream).map_err(bad)?;
+        for v in &found {
+            println!(
+                "{}",
+                serde_json::json!({
+                    "log": path.display().to_string(),
+                    "t": v.t as f64 / model.time_unit.nanos() as f64,
+                    "part": v.part,
+                    "violation": v.message,
+                })
+            );
+        }
+        if !args.quiet {
+            eprintln!("{}: {} violation(s)", path.display(), found.len());
+        }
+    }
+    Ok(())
+}
+
+fn progress_bar() -> ProgressBar {
+    if std::io::stderr().is_terminal() {
+        let bar = ProgressBar::new_spinner();
+        bar.set_style(
+            ProgressStyle::with_template("{spinner} learning: {human_pos} events ({per_sec})")
+                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+        );
+        bar
+    } else {
+        ProgressBar::hidden()
+    }
+}
+
+/// Writes beside the target, then renames: a failure never leaves half a file.
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
+    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
+    let result = (|| -> std::io::Result<()> {
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            fs::create_dir_all(parent)?;
+        }
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        let _ = fs::remove_file(&tmp);
+        Failure::Io(format!("cannot write {}: {e}", path.display()))
+    })
+}
+
+/// The learning report: per part and transition, the samples and the guard used.
+fn print_report(model: &Model) {
+    let unit = model.time_unit.name();
+    let mut out = String::new();
+    for part in &model.parts {
+        out.push_str(&format!(
+            "\n{} ({} states, {} transitions)\n",
+            part.name,
+            part.states.len(),
+            part.transitions.len()
+        ));
+        out.push_str(&format!(
+            "  {:<24} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9}  {:<22} {}\n",
+            "event", "n", "min", "q01", "q50", "q99", "max", "guard used", "clock"
+        ));
+        for t in &part.transitions {
+            let g = &t.guard;
+            let used = if t.command {
+                "(command)".to_string()
+            } else if t.timed {
+                format!("[{}, {}] {unit}", g.lo, g.hi)
+            } else {
+                "(untimed)".to_string()
+            };
+            out.push_str(&format!(
+                "  {:<24} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9}  {:<22} {}\n",
+                t.event, t.count, g.min, g.q01, g.q50, g.q99, g.max, used, t.clock
+            ));
+        }
+        for e in &part.sensor_estimates {
+            out.push_str(&format!(
+                "  estimate {} = {}  (uncertain: {})\n",
+                e.sensor,
+                e.expr,
+                e.uncertain.join(", ")
+            ));
+        }
+        for u in &part.untimed {
+            out.push_str(&format!("  untimed: {u}\n"));
+        }
+    }
+    print!("{out}");
+}
