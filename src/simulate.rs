@@ -45,6 +45,9 @@ pub struct SimulateArgs {
     /// Also write the wide form, scans.csv (one row per scan: large).
     #[arg(long)]
     scans: bool,
+    /// Also write the archive form as Parquet, intervals.parquet.
+    #[arg(long)]
+    parquet: bool,
     /// Directory to write events.csv, intervals.csv, truth.json, damage.json and
     /// plant.toml into (created if needed; files are replaced only on success).
     #[arg(long, default_value = "simulation")]
@@ -120,6 +123,9 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
     }
     .map_err(|e| Failure::Io(format!("cannot write {}: {e}", args.out.display())))?;
     bar.finish_and_clear();
+    if args.parquet {
+        write_parquet_archive(&args.out, &plant, args.duration)?;
+    }
 
     let counters: Vec<String> = report
         .counters
@@ -136,4 +142,17 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Writes `intervals.parquet` beside a finished run, from its `events.csv`.
+fn write_parquet_archive(dir: &std::path::Path, plant: &diagnoser::Plant, end: Time) -> Result<(), Failure> {
+    let log = diagnoser::log::read_events(&dir.join("events.csv"), &plant.signals, plant.time_unit)
+        .map_err(|e| Failure::Io(e.to_string()))?;
+    let tmp = dir.join(format!(".intervals.parquet.{}", std::process::id()));
+    learning::ingest::write_intervals_parquet(&log, &plant.signals, &tmp, end)
+        .and_then(|()| std::fs::rename(&tmp, dir.join("intervals.parquet")))
+        .map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            Failure::Io(format!("cannot write {}: {e}", dir.join("intervals.parquet").display()))
+        })
 }

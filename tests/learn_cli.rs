@@ -101,6 +101,20 @@ fn every_log_form_gives_the_same_model() {
 }
 
 #[test]
+fn the_parquet_archive_gives_the_same_model_as_the_csv_events() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let run = dir.path().join("run");
+    let sim = gardefou(&["simulate", "--duration", "20min", "--parquet", "--out", run.to_str().expect("utf-8")]);
+    assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    let parquet = run.join("intervals.parquet");
+    assert_eq!(fs::read(&parquet).expect("archive written").get(..4), Some(&b"PAR1"[..]));
+    let (a, pa) = learn(&dir.path().join("a"), &[run.join("events.csv").display().to_string()], &["-q"]);
+    let (b, pb) = learn(&dir.path().join("b"), &[parquet.display().to_string()], &["-q"]);
+    assert!(a.status.success() && b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    assert_eq!(model(&pa).parts, model(&pb).parts);
+}
+
+#[test]
 fn check_accepts_a_normal_run_and_flags_f2_right_after_the_rotation_order() {
     let dir = tempfile::tempdir().expect("temp dir");
     let other = dir.path().join("seed8");
