@@ -4,7 +4,7 @@ use std::fs;
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
-use clap::{Args, ValueEnum};
+use clap::Args;
 use diagnoser::model::Model;
 use diagnoser::{Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -15,45 +15,6 @@ use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
 
 use crate::Failure;
-
-/// Log forms, as named on the command line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum FormatArg {
-    /// Detect from the file's header.
-    Auto,
-    /// `t,signal,value` CSV.
-    EventsCsv,
-    /// `signal,value,t_start,t_end` CSV.
-    IntervalsCsv,
-    /// `t,<signals>` CSV.
-    ScansCsv,
-    /// Events as Parquet.
-    EventsParquet,
-    /// Intervals as Parquet.
-    IntervalsParquet,
-    /// Scans as Parquet.
-    ScansParquet,
-    /// `candump -L` output.
-    Candump,
-    /// Value change dump.
-    Vcd,
-}
-
-impl FormatArg {
-    fn format(self) -> Option<LogFormat> {
-        Some(match self {
-            FormatArg::Auto => return None,
-            FormatArg::EventsCsv => LogFormat::EventsCsv,
-            FormatArg::IntervalsCsv => LogFormat::IntervalsCsv,
-            FormatArg::ScansCsv => LogFormat::ScansCsv,
-            FormatArg::EventsParquet => LogFormat::EventsParquet,
-            FormatArg::IntervalsParquet => LogFormat::IntervalsParquet,
-            FormatArg::ScansParquet => LogFormat::ScansParquet,
-            FormatArg::Candump => LogFormat::Candump,
-            FormatArg::Vcd => LogFormat::Vcd,
-        })
-    }
-}
 
 /// Arguments of `gardefou learn`.
 #[derive(Debug, Args)]
@@ -67,9 +28,11 @@ pub struct LearnArgs {
     /// Where to write the model.
     #[arg(short = 'o', long, default_value = "model.json")]
     output: PathBuf,
-    /// Log form.
-    #[arg(long, value_enum, default_value = "auto")]
-    format: FormatArg,
+    /// Log form (default: detected from each file's header): events-csv,
+    /// intervals-csv, scans-csv, events-parquet, intervals-parquet, scans-parquet,
+    /// candump or vcd.
+    #[arg(long)]
+    format: Option<LogFormat>,
     /// Unit of numeric timestamps in the logs (default: the plant file's).
     #[arg(long)]
     time_unit: Option<TimeUnit>,
@@ -116,7 +79,7 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         )));
     }
     let ingest = IngestOptions {
-        format: args.format.format(),
+        format: args.format,
         time_unit: args.time_unit.unwrap_or(plant.time_unit),
         ..IngestOptions::default()
     };

@@ -145,7 +145,11 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
 }
 
 /// Writes `intervals.parquet` beside a finished run, from its `events.csv`.
-fn write_parquet_archive(dir: &std::path::Path, plant: &diagnoser::Plant, end: Time) -> Result<(), Failure> {
+fn write_parquet_archive(
+    dir: &std::path::Path,
+    plant: &diagnoser::Plant,
+    end: Time,
+) -> Result<(), Failure> {
     let log = diagnoser::log::read_events(&dir.join("events.csv"), &plant.signals, plant.time_unit)
         .map_err(|e| Failure::Io(e.to_string()))?;
     let tmp = dir.join(format!(".intervals.parquet.{}", std::process::id()));
@@ -153,6 +157,9 @@ fn write_parquet_archive(dir: &std::path::Path, plant: &diagnoser::Plant, end: T
         .and_then(|()| std::fs::rename(&tmp, dir.join("intervals.parquet")))
         .map_err(|e| {
             let _ = std::fs::remove_file(&tmp);
-            Failure::Io(format!("cannot write {}: {e}", dir.join("intervals.parquet").display()))
+            Failure::Io(format!(
+                "cannot write {}: {e}",
+                dir.join("intervals.parquet").display()
+            ))
         })
 }

@@ -83,6 +83,22 @@ fn learns_the_shipped_run_and_exports_graphviz_that_renders() {
 }
 
 #[test]
+fn several_logs_are_combined() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let normal = data("sorting/normal/events.csv");
+    let (one, p1) = learn(&dir.path().join("one"), std::slice::from_ref(&normal), &["-q"]);
+    let (two, p2) = learn(&dir.path().join("two"), &[normal.clone(), data("sorting/F3/events.csv")], &["-q"]);
+    assert!(one.status.success() && two.status.success(), "{}", String::from_utf8_lossy(&two.stderr));
+    let (m1, m2) = (model(&p1), model(&p2));
+    assert_eq!(m2.learned_from.logs.len(), 2);
+    assert!(m2.learned_from.events > m1.learned_from.events);
+    let count = |m: &Model| -> u64 {
+        m.parts.iter().find(|p| p.name == "turntable").map_or(0, |p| p.transitions.iter().map(|t| t.count).sum())
+    };
+    assert!(count(&m2) > count(&m1), "the second log's turntable moves were not counted");
+}
+
+#[test]
 fn every_log_form_gives_the_same_model() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (a, pa) = learn(
@@ -104,13 +120,39 @@ fn every_log_form_gives_the_same_model() {
 fn the_parquet_archive_gives_the_same_model_as_the_csv_events() {
     let dir = tempfile::tempdir().expect("temp dir");
     let run = dir.path().join("run");
-    let sim = gardefou(&["simulate", "--duration", "20min", "--parquet", "--out", run.to_str().expect("utf-8")]);
-    assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    let sim = gardefou(&[
+        "simulate",
+        "--duration",
+        "20min",
+        "--parquet",
+        "--out",
+        run.to_str().expect("utf-8"),
+    ]);
+    assert!(
+        sim.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
     let parquet = run.join("intervals.parquet");
-    assert_eq!(fs::read(&parquet).expect("archive written").get(..4), Some(&b"PAR1"[..]));
-    let (a, pa) = learn(&dir.path().join("a"), &[run.join("events.csv").display().to_string()], &["-q"]);
-    let (b, pb) = learn(&dir.path().join("b"), &[parquet.display().to_string()], &["-q"]);
-    assert!(a.status.success() && b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    assert_eq!(
+        fs::read(&parquet).expect("archive written").get(..4),
+        Some(&b"PAR1"[..])
+    );
+    let (a, pa) = learn(
+        &dir.path().join("a"),
+        &[run.join("events.csv").display().to_string()],
+        &["-q"],
+    );
+    let (b, pb) = learn(
+        &dir.path().join("b"),
+        &[parquet.display().to_string()],
+        &["-q"],
+    );
+    assert!(
+        a.status.success() && b.status.success(),
+        "{}",
+        String::from_utf8_lossy(&b.stderr)
+    );
     assert_eq!(model(&pa).parts, model(&pb).parts);
 }
 

@@ -49,6 +49,34 @@ pub enum LogFormat {
     Vcd,
 }
 
+impl LogFormat {
+    /// Every form with its command-line name.
+    pub const NAMES: [(&'static str, LogFormat); 8] = [
+        ("events-csv", LogFormat::EventsCsv),
+        ("intervals-csv", LogFormat::IntervalsCsv),
+        ("scans-csv", LogFormat::ScansCsv),
+        ("events-parquet", LogFormat::EventsParquet),
+        ("intervals-parquet", LogFormat::IntervalsParquet),
+        ("scans-parquet", LogFormat::ScansParquet),
+        ("candump", LogFormat::Candump),
+        ("vcd", LogFormat::Vcd),
+    ];
+}
+
+impl std::str::FromStr for LogFormat {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        LogFormat::NAMES
+            .iter()
+            .find(|(n, _)| *n == s)
+            .map(|&(_, f)| f)
+            .ok_or_else(|| {
+                let names: Vec<&str> = LogFormat::NAMES.iter().map(|(n, _)| *n).collect();
+                format!("unknown log form '{s}' (expected {})", names.join(", "))
+            })
+    }
+}
+
 /// How to open a log.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct IngestOptions {
