@@ -86,16 +86,34 @@ fn learns_the_shipped_run_and_exports_graphviz_that_renders() {
 fn several_logs_are_combined() {
     let dir = tempfile::tempdir().expect("temp dir");
     let normal = data("sorting/normal/events.csv");
-    let (one, p1) = learn(&dir.path().join("one"), std::slice::from_ref(&normal), &["-q"]);
-    let (two, p2) = learn(&dir.path().join("two"), &[normal.clone(), data("sorting/F3/events.csv")], &["-q"]);
-    assert!(one.status.success() && two.status.success(), "{}", String::from_utf8_lossy(&two.stderr));
+    let (one, p1) = learn(
+        &dir.path().join("one"),
+        std::slice::from_ref(&normal),
+        &["-q"],
+    );
+    let (two, p2) = learn(
+        &dir.path().join("two"),
+        &[normal.clone(), data("sorting/F3/events.csv")],
+        &["-q"],
+    );
+    assert!(
+        one.status.success() && two.status.success(),
+        "{}",
+        String::from_utf8_lossy(&two.stderr)
+    );
     let (m1, m2) = (model(&p1), model(&p2));
     assert_eq!(m2.learned_from.logs.len(), 2);
     assert!(m2.learned_from.events > m1.learned_from.events);
     let count = |m: &Model| -> u64 {
-        m.parts.iter().find(|p| p.name == "turntable").map_or(0, |p| p.transitions.iter().map(|t| t.count).sum())
+        m.parts
+            .iter()
+            .find(|p| p.name == "turntable")
+            .map_or(0, |p| p.transitions.iter().map(|t| t.count).sum())
     };
-    assert!(count(&m2) > count(&m1), "the second log's turntable moves were not counted");
+    assert!(
+        count(&m2) > count(&m1),
+        "the second log's turntable moves were not counted"
+    );
 }
 
 #[test]
