@@ -8,9 +8,10 @@
 use std::collections::HashMap;
 
 use diagnoser::model::{Model, PartModel};
-use diagnoser::{Event, Located, Plant, Time};
+use diagnoser::{Located, Location, Plant, Time};
 
 use crate::ingest::LogStream;
+use crate::replay::{Change, PartRoutes};
 
 /// A deviation from the model.
 #[derive(Debug, Clone, PartialEq)]
@@ -25,7 +26,7 @@ pub struct Violation {
 
 struct PartCheck<'m> {
     model: &'m PartModel,
-    /// Plant signal index → bit in the part's vector.
+    /// The part's current state vector.
     state: u64,
     origin: Option<Time>,
     last_edge: Vec<Option<Time>>,
@@ -77,18 +78,21 @@ impl<'m> PartCheck<'m> {
 pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violation>, Located> {
     let scale = model.time_unit.nanos() as f64;
     let mut parts: Vec<PartCheck> = Vec::new();
-    let mut routes: Vec<Vec<(usize, u8)>> = vec![Vec::new(); plant.signals.len()];
+    let mut routes = PartRoutes::new(plant.signals.len());
     for pm in &model.parts {
-        let pi = parts.len();
-        let mut state = 0u64;
-        for (bit, name) in pm.signals.iter().enumerate() {
-            if let Some(id) = plant.signals.id(name) {
-                routes[id.index()].push((pi, bit as u8));
-                if log.initial.get(id.index()).copied().unwrap_or(false) {
-                    state |= 1 << bit;
-                }
-            }
-        }
+        let ids = pm
+            .signals
+            .iter()
+            .map(|name| {
+                plant.signals.id(name).ok_or_else(|| {
+                    Located::new(
+                        Location::new(&log.path, 0, 0),
+                        format!("the model's part '{}' reads '{name}', which plant '{}' does not declare", pm.name, plant.name),
+                    )
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        routes.add_part(ids);
         let states = pm
             .states
             .iter()
@@ -116,7 +120,7 @@ pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violati
             .collect();
         parts.push(PartCheck {
             model: pm,
-            state,
+            state: 0,
             origin: None,
             last_edge: vec![None; 2 * pm.signals.len()],
             states,
@@ -126,37 +130,18 @@ pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violati
         });
     }
 
+    let mut states = routes.states(&log.initial);
+    for (pc, &state) in parts.iter_mut().zip(&states) {
+        pc.state = state;
+    }
     let mut out = Vec::new();
-    let mut scan: Option<Time> = None;
-    let mut touched: Vec<(usize, u64)> = Vec::new();
-    let mut last_t = log.start;
-    for batch in log.batches {
-        for Event { t, signal, value } in batch? {
-            if scan != Some(t) {
-                if let Some(s) = scan {
-                    step(&mut parts, s, &mut touched, scale, &mut out);
-                }
-                scan = Some(t);
-            }
-            for &(p, bit) in routes.get(signal.index()).map_or(&[][..], Vec::as_slice) {
-                let mask = 1u64 << bit;
-                let cur = match touched.iter().find(|(q, _)| *q == p) {
-                    Some((_, m)) => (parts[p].state ^ m) & mask != 0,
-                    None => parts[p].state & mask != 0,
-                };
-                if cur != value {
-                    match touched.iter_mut().find(|(q, _)| *q == p) {
-                        Some((_, m)) => *m ^= mask,
-                        None => touched.push((p, mask)),
-                    }
-                }
-            }
-            last_t = t;
-        }
-    }
-    if let Some(s) = scan {
-        step(&mut parts, s, &mut touched, scale, &mut out);
-    }
+    let (_, last_t) = routes.replay(
+        log.batches,
+        log.start,
+        &mut states,
+        |t, changes| step(&mut parts, t, changes, scale, &mut out),
+        |_| {},
+    )?;
     for pc in &mut parts {
         missed(pc, last_t, scale, &mut out);
     }
@@ -210,19 +195,20 @@ fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
 fn step(
     parts: &mut [PartCheck],
     t: Time,
-    touched: &mut Vec<(usize, u64)>,
+    changes: &[Change],
     scale: f64,
     out: &mut Vec<Violation>,
 ) {
     for pc in parts.iter_mut() {
         missed(pc, t, scale, out);
     }
-    for (p, changed) in touched.drain(..) {
-        if changed == 0 {
-            continue;
-        }
-        let pc = &mut parts[p];
-        let from = pc.state;
+    for &Change {
+        part,
+        from,
+        changed,
+    } in changes
+    {
+        let pc = &mut parts[part];
         let to = from ^ changed;
         match pc.trans.get(&(from, to)).map(|&i| &pc.model.transitions[i]) {
             // Independent edges that happened to fall in one scan: accepted when

@@ -12,9 +12,10 @@ use diagnoser::model::{
     ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, PartModel,
     Provenance, SensorEstimate, SensorSchedule, StateModel, TransitionModel,
 };
-use diagnoser::{Event, Located, Plant, SignalKind, Time};
+use diagnoser::{Located, Plant, SignalKind, Time};
 
 use crate::ingest::LogStream;
+use crate::replay::PartRoutes;
 
 /// Settings of learning.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,8 +61,7 @@ pub struct Learner<'p> {
     options: LearnOptions,
     margin: Time,
     parts: Vec<PartLearner>,
-    /// For each plant signal, the parts it belongs to and its bit there.
-    routes: Vec<Vec<(usize, u8)>>,
+    routes: PartRoutes,
     logs: Vec<String>,
     events: u64,
     duration: Time,
@@ -74,9 +74,9 @@ impl<'p> Learner<'p> {
     /// A part with more than 64 signals cannot be learned (its state would not
     /// fit a machine word); the error names it.
     pub fn new(plant: &'p Plant, options: LearnOptions) -> Result<Self, String> {
-        let mut routes = vec![Vec::new(); plant.signals.len()];
+        let mut routes = PartRoutes::new(plant.signals.len());
         let mut parts = Vec::new();
-        for (pi, part) in plant.parts.iter().enumerate() {
+        for part in &plant.parts {
             let ids: Vec<_> = part
                 .actuators
                 .iter()
@@ -90,9 +90,7 @@ impl<'p> Learner<'p> {
                     ids.len()
                 ));
             }
-            for (bit, id) in ids.iter().enumerate() {
-                routes[id.index()].push((pi, bit as u8));
-            }
+            routes.add_part(ids.iter().copied());
             let names = ids
                 .iter()
                 .map(|&id| plant.signals.name(id).to_string())
@@ -124,74 +122,28 @@ impl<'p> Learner<'p> {
         mut progress: impl FnMut(u64),
     ) -> Result<(), Located> {
         self.logs.push(log.path.display().to_string());
-        let initial = log.initial;
-        for (pi, part) in self.parts.iter_mut().enumerate() {
-            let mut state = 0u64;
-            for (sig, routes) in self.routes.iter().enumerate() {
-                for &(p, bit) in routes {
-                    if p == pi && initial.get(sig).copied().unwrap_or(false) {
-                        state |= 1 << bit;
-                    }
-                }
-            }
+        let mut states = self.routes.states(&log.initial);
+        for (part, &state) in self.parts.iter_mut().zip(&states) {
             part.start_log(state);
         }
-        let mut scan: Option<Time> = None;
-        let mut touched: Vec<(usize, u64)> = Vec::new();
-        let mut last_t = log.start;
-        let mut read = 0u64;
-        for batch in log.batches {
-            let batch = batch?;
-            for Event { t, signal, value } in batch {
-                if scan != Some(t) {
-                    if let Some(s) = scan {
-                        self.flush(s, &mut touched);
-                    }
-                    scan = Some(t);
+        let parts = &mut self.parts;
+        let (read, last_t) = self.routes.replay(
+            log.batches,
+            log.start,
+            &mut states,
+            |t, changes| {
+                for c in changes {
+                    parts[c.part].transition(t, c.from, c.changed);
                 }
-                for &(p, bit) in self
-                    .routes
-                    .get(signal.index())
-                    .map_or(&[][..], Vec::as_slice)
-                {
-                    let mask = 1u64 << bit;
-                    match touched.iter_mut().find(|(q, _)| *q == p) {
-                        Some((_, m)) => {
-                            // Set the bit to `value`: toggle only when it differs.
-                            let cur = (self.parts[p].state ^ *m) & mask != 0;
-                            if cur != value {
-                                *m ^= mask;
-                            }
-                        }
-                        None => {
-                            if (self.parts[p].state & mask != 0) != value {
-                                touched.push((p, mask));
-                            }
-                        }
-                    }
-                }
-                last_t = t;
-                read += 1;
-            }
-            progress(read);
-        }
-        if let Some(s) = scan {
-            self.flush(s, &mut touched);
-        }
+            },
+            &mut progress,
+        )?;
         for part in &mut self.parts {
             part.end_log(last_t);
         }
         self.events += read;
         self.duration += last_t - log.start;
         Ok(())
-    }
-
-    fn flush(&mut self, t: Time, touched: &mut Vec<(usize, u64)>) {
-        for (p, changed) in touched.drain(..) {
-            if changed != 0 {
-                self.parts[p].transition(t, changed);
-            }
-        }
     }
 
     /// Turns the statistics into a model.
@@ -228,7 +180,7 @@ impl<'p> Learner<'p> {
         self.plant
             .signals
             .iter()
-            .filter(|(id, s)| s.kind == SignalKind::Sensor && self.routes[id.index()].is_empty())
+            .filter(|(id, s)| s.kind == SignalKind::Sensor && self.routes.is_unrouted(*id))
             .map(|(_, s)| s.name.as_str())
             .collect()
     }
@@ -381,7 +333,6 @@ struct PartLearner {
     name: String,
     names: Vec<String>,
     n_act: usize,
-    state: u64,
     origin: Option<Time>,
     /// Last time of each edge, indexed bit · 2 + rising.
     last_edge: Vec<Option<Time>>,
@@ -401,7 +352,6 @@ impl PartLearner {
             name,
             names,
             n_act,
-            state: 0,
             origin: None,
             last_edge: vec![None; 2 * n],
             state_ids: FastMap::default(),
@@ -432,7 +382,6 @@ impl PartLearner {
     }
 
     fn start_log(&mut self, state: u64) {
-        self.state = state;
         self.origin = None;
         self.last_edge.iter_mut().for_each(|e| *e = None);
         self.episode = None;
@@ -444,8 +393,7 @@ impl PartLearner {
         self.close_episode(t);
     }
 
-    fn transition(&mut self, t: Time, changed: u64) {
-        let from_vec = self.state;
+    fn transition(&mut self, t: Time, from_vec: u64, changed: u64) {
         let to_vec = from_vec ^ changed;
         let from = self.state_id(from_vec);
         let to = self.state_id(to_vec);
@@ -484,7 +432,6 @@ impl PartLearner {
                 self.last_edge[2 * bit + usize::from(rising)] = Some(t);
             }
         }
-        self.state = to_vec;
 
         let command = changed & self.act_mask() != 0;
         if command {

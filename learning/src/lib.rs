@@ -16,4 +16,5 @@ pub mod check;
 pub mod dot;
 pub mod ingest;
 pub mod learn;
+mod replay;
 pub mod suggest;

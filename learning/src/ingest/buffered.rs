@@ -104,7 +104,17 @@ struct Batcher<'s> {
     scan_t: Option<Time>,
 }
 
-impl Batcher<'_> {
+impl<'s> Batcher<'s> {
+    fn new(send: &'s SyncSender<Msg>, size: usize) -> Self {
+        Batcher {
+            send,
+            size,
+            batch: Vec::with_capacity(size),
+            scan: Vec::new(),
+            scan_t: None,
+        }
+    }
+
     /// Returns false when the consumer is gone.
     fn push(&mut self, e: Event) -> bool {
         if self.scan_t != Some(e.t) {
@@ -183,13 +193,7 @@ fn events(
     {
         return Ok(());
     }
-    let mut out = Batcher {
-        send,
-        size,
-        batch: Vec::with_capacity(size),
-        scan: Vec::new(),
-        scan_t: None,
-    };
+    let mut out = Batcher::new(send, size);
     let rows = pending.into_iter().map(Ok).chain(reader.by_ref());
     for row in rows {
         let e = row?;
@@ -230,13 +234,7 @@ fn scans(
     {
         return Ok(());
     }
-    let mut out = Batcher {
-        send,
-        size,
-        batch: Vec::with_capacity(size),
-        scan: Vec::new(),
-        scan_t: None,
-    };
+    let mut out = Batcher::new(send, size);
     while let Some(row) = reader.next_scan() {
         let (t, row) = row?;
         for (i, (old, &new)) in values.iter_mut().zip(row).enumerate() {
