@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod diagnose;
 mod learn;
 mod simulate;
 
@@ -23,6 +24,8 @@ struct Cli {
 enum Command {
     /// Learn one timed model per plant part from logs of normal operation.
     Learn(learn::LearnArgs),
+    /// Replay logs through every part's diagnoser: verdict changes as JSON lines.
+    Diagnose(diagnose::DiagnoseArgs),
     /// Simulate a reference plant (with injected faults) and write its logs.
     Simulate(simulate::SimulateArgs),
 }
@@ -67,6 +70,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Learn(args) => learn::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Diagnose(args) => diagnose::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -13,6 +13,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::TimeUnit;
+use crate::error::{Located, Location};
 
 /// Version of the `model.json` schema written by this build.
 pub const MODEL_VERSION: u32 = 1;
@@ -56,6 +57,50 @@ pub struct LearnSettings {
     pub margin_relative: f64,
     /// Share of samples trimmed on each side before widening (outliers).
     pub trim: f64,
+}
+
+impl Model {
+    /// Reads a `model.json` file, checking its schema version.
+    pub fn from_path(path: &std::path::Path) -> Result<Model, Located> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Located::new(Location::new(path, 0, 0), format!("cannot read: {e}")))?;
+        Model::parse(&text, path)
+    }
+
+    /// Parses the text of a `model.json` file; `path` names it in errors.
+    pub fn parse(text: &str, path: &std::path::Path) -> Result<Model, Located> {
+        // Check the version first: a model from another schema fails on it, not
+        // on whichever field changed.
+        #[derive(Deserialize)]
+        struct Versioned {
+            version: Option<u32>,
+        }
+        let at = |e: &serde_json::Error| Location::new(path, e.line(), e.column());
+        let v: Versioned = serde_json::from_str(text)
+            .map_err(|e| Located::new(at(&e), format!("not a model file: {e}")))?;
+        match v.version {
+            Some(MODEL_VERSION) => {}
+            Some(other) => {
+                return Err(Located::new(
+                    Location::new(path, 1, 1).with_field("version"),
+                    format!(
+                        "model schema version {other}; this build reads version {MODEL_VERSION} (learn the model again)"
+                    ),
+                ));
+            }
+            None => {
+                return Err(Located::new(
+                    Location::new(path, 1, 1).with_field("version"),
+                    "not a model file: no schema version",
+                ));
+            }
+        }
+        serde_json::from_str(text).map_err(|e| {
+            let msg = e.to_string();
+            let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+            Located::new(at(&e), msg)
+        })
+    }
 }
 
 /// The model of one part.

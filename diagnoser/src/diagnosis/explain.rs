@@ -1,0 +1,126 @@
+//! Verdict reasons in words: what was observed, or what failed to come.
+
+use super::engine::Engine;
+use super::part::{Clock, Hypothesis, Readings};
+use crate::TimeUnit;
+
+/// Why part `engine` went from state `previous` to `now`: after a scan that
+/// changed `scan = (observed before, changed bits)`, or (`None`) because time
+/// passed. `readings` are the clocks at that moment.
+pub(crate) fn reason(
+    engine: &Engine,
+    previous: u32,
+    now: u32,
+    scan: Option<(u32, u32)>,
+    readings: &Readings,
+    last_command: Option<(u32, u32)>,
+    unit: TimeUnit,
+) -> String {
+    let part = &engine.part;
+    let before = engine.state(previous);
+    let after = engine.state(now);
+    let clock_text = |clock: u8| match part.clocks.get(clock as usize) {
+        Some(Clock::Command) => match last_command {
+            Some((obs, changed)) => part.edges(obs, changed),
+            None => "the last command".to_string(),
+        },
+        _ => part.clock_name(clock),
+    };
+    let fmt = |ns: i64| format!("{} {}", unit.format(ns), unit.name());
+    let window =
+        |lo: i64, hi: i64| format!("[{}, {}] {}", unit.format(lo), unit.format(hi), unit.name());
+    // The hypothesis whose loss best explains the change: the normal one first.
+    let lost: Vec<Hypothesis> = before
+        .hyps
+        .iter()
+        .filter(|h| !after.hyps.contains(h))
+        .copied()
+        .collect();
+    let normal_lost =
+        before.hyps.iter().any(|h| h.mode == 0) && !after.hyps.iter().any(|h| h.mode == 0);
+    let subject = lost
+        .iter()
+        .find(|h| h.mode == 0)
+        .or_else(|| lost.first())
+        .copied();
+    let glitch = subject.filter(|&h| h.mode != 0 && part.glitch_expired(h, readings));
+    let mut text = match (scan, glitch) {
+        (None, Some(h)) => {
+            let mode = &part.modes[h.mode as usize];
+            let sensor = mode
+                .template
+                .as_ref()
+                .and_then(|t| t.signal())
+                .unwrap_or("?");
+            format!(
+                "{sensor} kept its value over {}: a stuck sensor, not an unexpected edge",
+                fmt(part.glitch_max())
+            )
+        }
+        (None, None) => {
+            let missed: Vec<String> = subject
+                .and_then(|h| part.model_state(h.phys))
+                .map(|s| {
+                    part.expected(s)
+                        .iter()
+                        .map(|&k| {
+                            let m = &part.moves(s)[k];
+                            format!(
+                                "{} within {} after {}",
+                                part.event_name(m.id),
+                                window(m.lo, m.hi),
+                                clock_text(m.clock)
+                            )
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            if missed.is_empty() {
+                "time passed with no event".to_string()
+            } else {
+                format!("no {}", missed.join(", nor "))
+            }
+        }
+        (Some((obs, changed)), _) => {
+            let edges = part.edges(obs, changed);
+            let mut s = match readings.first().copied().flatten() {
+                Some(c) if changed & part.actuator_mask() == 0 => {
+                    format!("{edges} at {} after {}", fmt(c), clock_text(0))
+                }
+                _ => edges.clone(),
+            };
+            if normal_lost {
+                // Was it a known transition out of its window, or unknown there?
+                let known = part
+                    .model_state(obs)
+                    .and_then(|st| part.moves(st).iter().find(|m| m.changed == changed));
+                match known {
+                    Some(m) => s.push_str(&format!(
+                        ", outside its window {} after {}",
+                        window(m.lo, m.hi),
+                        clock_text(m.clock)
+                    )),
+                    None => s.push_str(&format!(", not expected in state {}", part.describe(obs))),
+                }
+            }
+            s
+        }
+    };
+    let labels_before = engine.labels(before.labels);
+    let labels_after = engine.labels(after.labels);
+    if !labels_before.normal && !labels_after.normal {
+        let gone: Vec<&str> = labels_before
+            .modes
+            .iter()
+            .filter(|m| !labels_after.modes.contains(m))
+            .map(|&m| part.modes[m as usize].label.as_str())
+            .collect();
+        if !gone.is_empty() {
+            text.push_str(&format!(": rules out {}", gone.join(", ")));
+        }
+    }
+    if !labels_after.normal && labels_after.modes.is_empty() {
+        text.push_str("; no fault of the model explains it");
+    }
+    text
+}

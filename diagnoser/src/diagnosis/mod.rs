@@ -1,0 +1,24 @@
+//! Local timed diagnosers (seed 002 §3): one per plant part, built from the
+//! part's learned model and the plant's fault templates, run on-line over the
+//! part's events and the passing of time.
+//!
+//! - [`part`]: the fault modes of a part and the semantics of its hypotheses
+//!   (mode, physical state), including hidden transitions and deadlines.
+//! - [`engine`]: the diagnoser automaton whose states are sets of hypotheses,
+//!   built on the fly and memoised, so a replay is a table lookup per scan.
+//! - [`run`]: every part's diagnoser fed with a plant's events, giving the
+//!   verdict changes of SPEC §3.
+//!
+//! Labels, verdicts and flags follow SPEC §3: the verdict is normal while the
+//! normal hypothesis survives; otherwise the labels are the remaining fault
+//! modes, `def_<partition>` is raised when they all lie in one partition, and the
+//! suspects are the partitions they touch.
+
+pub mod engine;
+mod explain;
+pub mod part;
+pub mod run;
+
+pub use engine::{Engine, Labels};
+pub use part::{Hypothesis, ModeKind, PartDiagnoser};
+pub use run::{DiagnoserOptions, PartSummary, PlantDiagnoser, UNKNOWN_LABEL, Verdict, VerdictKind};

@@ -1,0 +1,946 @@
+//! One part's diagnoser: its fault modes, built from the plant's fault templates
+//! over the learned model of the part, and the semantics of its hypotheses.
+//!
+//! A *hypothesis* is a fault mode (normal, or one fault of the part) with the
+//! part's physical state in that mode. Under a fault the physical state and the
+//! observed one may differ: a stuck sensor reads its stuck value whatever the
+//! plant does, a stuck actuator ignores its orders. The physical state follows the
+//! learned model's transitions, with their interval guards; the observed one is
+//! what the log shows. A diagnoser tracks the set of hypotheses consistent with
+//! everything observed, including the passing of time: a state the model says must
+//! be left by a deadline is no longer possible once the deadline has passed.
+//!
+//! Fault onsets are unobservable and may come at any moment (seed 002: a single
+//! permanent fault per part), so every fault mode that could have begun silently
+//! is carried along as a *shadow* of the normal hypothesis. The verdict is normal
+//! as long as the normal hypothesis survives; when it dies, the remaining modes are
+//! the candidate labels. Carrying the shadows from the start, rather than guessing
+//! the onset when the normal hypothesis dies, is what makes the labels sound: the
+//! true fault is never excluded, whenever it began.
+
+use std::collections::HashMap;
+
+use crate::fault::FaultTemplate;
+use crate::model::PartModel;
+use crate::plant::{Part, Plant};
+use crate::{SignalId, Time};
+
+/// Most signals a part may have: states are bit vectors of this width.
+pub const MAX_PART_SIGNALS: usize = 16;
+
+/// A clock a guard or a deadline is measured on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Clock {
+    /// Time since the part's last actuator edge.
+    Command,
+    /// Time since the last edge of one of the part's signals, e.g. `FE(C1)`.
+    Edge {
+        /// Bit of the signal in the part's state vector.
+        bit: u8,
+        /// Rising (`RE`) or falling (`FE`) edge.
+        rising: bool,
+    },
+}
+
+/// One transition of the learned model, in the form the diagnoser runs.
+#[derive(Debug, Clone)]
+pub struct Move {
+    /// Index of the transition in the model.
+    pub id: usize,
+    /// Bits of the part's state vector that change.
+    pub changed: u32,
+    /// Whether an actuator edge is among them.
+    pub command: bool,
+    /// Index of the guard's clock in [`PartDiagnoser::clocks`].
+    pub clock: u8,
+    /// Earliest clock reading, in nanoseconds.
+    pub lo: Time,
+    /// Latest clock reading, in nanoseconds.
+    pub hi: Time,
+    /// Whether the guard is enforced (untimed transitions follow the product flow).
+    pub timed: bool,
+}
+
+/// How a fault mode transforms the part's normal behaviour.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModeKind {
+    /// No fault.
+    Normal,
+    /// The sensor at `bit` reads `value` whatever the plant does; its real edges
+    /// are hidden.
+    SensorStuck {
+        /// Bit of the sensor.
+        bit: u8,
+        /// The value it reads.
+        value: bool,
+    },
+    /// The sensor at `bit` takes `value` when the plant does not explain it, then
+    /// goes back to the real value (seed 002's unexpected rise and fall).
+    Glitch {
+        /// Bit of the sensor.
+        bit: u8,
+        /// The unexpected value: 1 for a rise, 0 for a fall.
+        value: bool,
+    },
+    /// The actuator at `bit` stays at `value` whatever its order.
+    ActuatorStuck {
+        /// Bit of the actuator.
+        bit: u8,
+        /// The value it keeps.
+        value: bool,
+    },
+    /// The element cannot leave the position of the sensor at `bit`: once there,
+    /// the part's sensors no longer change.
+    BlockedAt {
+        /// Bit of the position's sensor.
+        bit: u8,
+    },
+    /// The element stops in transit from the position of `from` to that of `to`:
+    /// once it has left `from` towards `to`, the part's sensors no longer change.
+    BlockedBetween {
+        /// Bit of the sensor of the position it leaves.
+        from: u8,
+        /// Bit of the sensor of the position it never reaches.
+        to: u8,
+    },
+}
+
+/// A fault mode of a part (or its normal mode).
+#[derive(Debug, Clone)]
+pub struct Mode {
+    /// The label reported: `N`, or the fault's label from the plant file (`F2`).
+    pub label: String,
+    /// The fault's template, `None` for the normal mode.
+    pub template: Option<FaultTemplate>,
+    /// How the mode changes the part's behaviour.
+    pub kind: ModeKind,
+    /// Index of the fault's partition in [`PartDiagnoser::partitions`].
+    pub partition: Option<usize>,
+}
+
+/// A hypothesis: a mode and the part's physical state in it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Hypothesis {
+    /// Index in [`PartDiagnoser::modes`] (0 is normal).
+    pub mode: u16,
+    /// [`Hypothesis::GLITCH`] and [`Hypothesis::UNTIMED`].
+    pub flags: u8,
+    /// While a glitch shows: [`Hypothesis::SEEN`] if it began with an observed
+    /// edge, else the model transition it hid as it began (its deadline counts
+    /// from that transition's window). 0 otherwise.
+    pub since: u16,
+    /// The physical state vector (bit `i`: the part's `i`-th signal).
+    pub phys: u32,
+}
+
+impl Hypothesis {
+    /// A glitch mode's sensor currently shows its unexpected value.
+    pub const GLITCH: u8 = 1;
+    /// The clocks no longer say when the physical state was entered (a stuck
+    /// actuator moved the part at an unobserved moment), so guards and deadlines
+    /// are not enforced for this hypothesis.
+    pub const UNTIMED: u8 = 2;
+
+    /// [`Hypothesis::since`] of a glitch that began with an observed edge.
+    pub const SEEN: u16 = u16::MAX;
+
+    fn normal(phys: u32) -> Self {
+        Hypothesis {
+            mode: 0,
+            flags: 0,
+            since: 0,
+            phys,
+        }
+    }
+
+    fn has(self, flag: u8) -> bool {
+        self.flags & flag != 0
+    }
+}
+
+/// Clock readings in nanoseconds, indexed like [`PartDiagnoser::clocks`]; `None`
+/// while the clock's origin has not been observed.
+pub type Readings = [Option<Time>];
+
+/// The static diagnoser of one part: its model in runnable form and its modes.
+#[derive(Debug, Clone)]
+pub struct PartDiagnoser {
+    /// Part name.
+    pub name: String,
+    /// The part's signals, actuators first (the bits of every state vector).
+    pub signals: Vec<SignalId>,
+    /// Their names.
+    pub names: Vec<String>,
+    /// How many of `signals` are actuators.
+    pub actuators: usize,
+    /// The clocks guards are measured on (index 0 is the command clock).
+    pub clocks: Vec<Clock>,
+    /// Mode 0 is normal; then one mode per fault of the part.
+    pub modes: Vec<Mode>,
+    /// Names of the partitions the part's faults belong to (flags `def_<name>`).
+    pub partitions: Vec<String>,
+    act_mask: u32,
+    /// Model state of each known state vector.
+    states: HashMap<u32, usize>,
+    /// The state vector of each model state.
+    vectors: Vec<u32>,
+    /// Transitions out of each model state.
+    moves: Vec<Vec<Move>>,
+    /// Per model state, indices in `moves[state]` of the sensor events that must
+    /// come (the state must be left by the last of their deadlines).
+    expected: Vec<Vec<usize>>,
+    /// Event names of the model's transitions, by model transition index.
+    events: Vec<String>,
+    /// Clock, upper bound and timedness of each model transition, by index.
+    windows: Vec<(u8, Time, bool)>,
+    /// Longest an unexpected edge (a glitch) shows before the sensor reads its
+    /// real value again, in nanoseconds.
+    glitch_max: Time,
+}
+
+/// Why a part's diagnoser cannot be built.
+pub type BuildError = String;
+
+impl PartDiagnoser {
+    /// Builds the diagnoser of `part` from its learned `model` and the faults of
+    /// `plant` that concern it. `scale` is nanoseconds per model time unit.
+    /// `glitch_max` bounds how long an unexpected edge shows (nanoseconds).
+    pub fn build(
+        plant: &Plant,
+        part: &Part,
+        model: &PartModel,
+        scale: f64,
+        glitch_max: Time,
+    ) -> Result<PartDiagnoser, BuildError> {
+        let signals: Vec<SignalId> = part
+            .actuators
+            .iter()
+            .chain(&part.sensors)
+            .copied()
+            .collect();
+        let names: Vec<String> = signals
+            .iter()
+            .map(|&s| plant.signals.name(s).to_string())
+            .collect();
+        if names != model.signals || model.actuators != part.actuators.len() {
+            return Err(format!(
+                "part '{}': the model's signals [{}] are not the plant's [{}] (learned from another plant file?)",
+                part.name,
+                model.signals.join(", "),
+                names.join(", ")
+            ));
+        }
+        if names.len() > MAX_PART_SIGNALS {
+            return Err(format!(
+                "part '{}' has {} signals; a diagnoser handles at most {MAX_PART_SIGNALS}",
+                part.name,
+                names.len()
+            ));
+        }
+        let bit_of = |name: &str| names.iter().position(|n| n == name).map(|b| b as u8);
+        let act_mask = (1u32 << part.actuators.len()) - 1;
+
+        let mut clocks = vec![Clock::Command];
+        let mut clock_index = |name: &str| -> Result<u8, BuildError> {
+            let clock = if name == "command" {
+                Clock::Command
+            } else {
+                let parsed = name
+                    .strip_suffix(')')
+                    .and_then(|s| s.split_once('('))
+                    .and_then(|(edge, sig)| {
+                        let rising = match edge {
+                            "RE" => true,
+                            "FE" => false,
+                            _ => return None,
+                        };
+                        bit_of(sig).map(|bit| Clock::Edge { bit, rising })
+                    });
+                parsed.ok_or_else(|| {
+                    format!("part '{}': unknown clock '{name}' in the model", part.name)
+                })?
+            };
+            Ok(match clocks.iter().position(|&c| c == clock) {
+                Some(i) => i as u8,
+                None => {
+                    clocks.push(clock);
+                    (clocks.len() - 1) as u8
+                }
+            })
+        };
+
+        let mut states = HashMap::new();
+        let mut vectors = Vec::with_capacity(model.states.len());
+        for (i, s) in model.states.iter().enumerate() {
+            if s.values.len() != names.len() {
+                return Err(format!(
+                    "part '{}': state {i} has {} values for {} signals",
+                    part.name,
+                    s.values.len(),
+                    names.len()
+                ));
+            }
+            let v = s
+                .values
+                .iter()
+                .enumerate()
+                .fold(0u32, |v, (b, &x)| v | (u32::from(x) << b));
+            states.insert(v, i);
+            vectors.push(v);
+        }
+        let to_ns = |x: f64| (x * scale).round() as Time;
+        let mut moves: Vec<Vec<Move>> = vec![Vec::new(); vectors.len()];
+        let mut events = Vec::with_capacity(model.transitions.len());
+        let mut windows = Vec::with_capacity(model.transitions.len());
+        for t in &model.transitions {
+            let (Some(&from), Some(&to)) = (vectors.get(t.from), vectors.get(t.to)) else {
+                return Err(format!(
+                    "part '{}': transition {} joins unknown states",
+                    part.name, t.id
+                ));
+            };
+            moves[t.from].push(Move {
+                id: t.id,
+                changed: from ^ to,
+                command: (from ^ to) & act_mask != 0,
+                clock: clock_index(&t.clock)?,
+                lo: to_ns(t.guard.lo),
+                hi: to_ns(t.guard.hi),
+                timed: t.timed,
+            });
+            events.push(t.event.clone());
+            windows.push((clock_index(&t.clock)?, to_ns(t.guard.hi), t.timed));
+        }
+        let mut expected = vec![Vec::new(); vectors.len()];
+        for (i, s) in model.states.iter().enumerate() {
+            if s.stable {
+                continue;
+            }
+            for e in &s.expected {
+                if let Some(k) = moves[i].iter().position(|m| m.id == e.transition) {
+                    expected[i].push(k);
+                }
+            }
+        }
+
+        let mut modes = vec![Mode {
+            label: "N".to_string(),
+            template: None,
+            kind: ModeKind::Normal,
+            partition: None,
+        }];
+        let mut partitions: Vec<String> = Vec::new();
+        for f in &plant.faults {
+            let Some(kind) = mode_kind(&f.template, part, &bit_of) else {
+                continue;
+            };
+            if let ModeKind::Glitch { bit, value } = kind {
+                // The glitch's own clock: time since its observed edge.
+                let edge = format!(
+                    "{}({})",
+                    if value { "RE" } else { "FE" },
+                    names[bit as usize]
+                );
+                clock_index(&edge)?;
+            }
+            let partition = plant.partition_of(&f.label).map(|p| {
+                match partitions.iter().position(|n| *n == p.name) {
+                    Some(i) => i,
+                    None => {
+                        partitions.push(p.name.clone());
+                        partitions.len() - 1
+                    }
+                }
+            });
+            modes.push(Mode {
+                label: f.label.clone(),
+                template: Some(f.template.clone()),
+                kind,
+                partition,
+            });
+        }
+        if partitions.len() > 32 {
+            return Err(format!(
+                "part '{}' has {} fault partitions; at most 32 are supported",
+                part.name,
+                partitions.len()
+            ));
+        }
+        Ok(PartDiagnoser {
+            name: part.name.clone(),
+            signals,
+            names,
+            actuators: part.actuators.len(),
+            clocks,
+            modes,
+            partitions,
+            act_mask,
+            states,
+            vectors,
+            moves,
+            expected,
+            events,
+            windows,
+            glitch_max,
+        })
+    }
+
+    /// Bits of the actuators in a state vector.
+    pub fn actuator_mask(&self) -> u32 {
+        self.act_mask
+    }
+
+    /// The model's state vectors.
+    pub fn state_vectors(&self) -> &[u32] {
+        &self.vectors
+    }
+
+    /// The model state of a state vector, if the model knows it.
+    pub fn model_state(&self, vector: u32) -> Option<usize> {
+        self.states.get(&vector).copied()
+    }
+
+    /// Transitions out of a model state.
+    pub fn moves(&self, state: usize) -> &[Move] {
+        &self.moves[state]
+    }
+
+    /// The sensor events a model state expects, as indices in [`Self::moves`].
+    pub fn expected(&self, state: usize) -> &[usize] {
+        &self.expected[state]
+    }
+
+    /// The event name of a model transition, e.g. `FE(C4)`.
+    pub fn event_name(&self, transition: usize) -> &str {
+        self.events.get(transition).map_or("?", String::as_str)
+    }
+
+    /// A state vector as `A4=1 C4=0 C5=0`.
+    pub fn describe(&self, vector: u32) -> String {
+        self.names
+            .iter()
+            .enumerate()
+            .map(|(b, n)| format!("{n}={}", vector >> b & 1))
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+
+    /// The edges between two state vectors, e.g. `FE(C4) RE(C5)`.
+    pub fn edges(&self, before: u32, changed: u32) -> String {
+        let after = before ^ changed;
+        self.names
+            .iter()
+            .enumerate()
+            .filter(|(b, _)| changed >> b & 1 == 1)
+            .map(|(b, n)| {
+                let edge = if after >> b & 1 == 1 { "RE" } else { "FE" };
+                format!("{edge}({n})")
+            })
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+
+    /// A clock's name: `command` or an edge such as `FE(C1)`.
+    pub fn clock_name(&self, clock: u8) -> String {
+        match self.clocks.get(clock as usize) {
+            Some(Clock::Edge { bit, rising }) => format!(
+                "{}({})",
+                if *rising { "RE" } else { "FE" },
+                self.names.get(*bit as usize).map_or("?", String::as_str)
+            ),
+            _ => "command".to_string(),
+        }
+    }
+
+    /// Bits on which a hypothesis's physical state may differ from the observed one.
+    fn decoupled(&self, h: Hypothesis) -> u32 {
+        match self.modes[h.mode as usize].kind {
+            ModeKind::SensorStuck { bit, .. } | ModeKind::ActuatorStuck { bit, .. } => 1 << bit,
+            ModeKind::Glitch { bit, .. } if h.has(Hypothesis::GLITCH) => 1 << bit,
+            _ => 0,
+        }
+    }
+
+    fn frozen(&self, h: Hypothesis) -> bool {
+        matches!(
+            self.modes[h.mode as usize].kind,
+            ModeKind::BlockedAt { .. } | ModeKind::BlockedBetween { .. }
+        )
+    }
+
+    /// The reading of `clock` as hypothesis `h` sees it: `None` when unknown to it
+    /// (not yet observed, untimed hypothesis, or an edge its fault hides).
+    pub fn reading(&self, h: Hypothesis, clock: u8, readings: &Readings) -> Option<Time> {
+        if !self.sees(h, clock) {
+            return None;
+        }
+        readings.get(clock as usize).copied().flatten()
+    }
+
+    /// Whether hypothesis `h` can read `clock` at all: not when it is untimed, nor
+    /// when the clock is an edge its fault hides.
+    pub fn sees(&self, h: Hypothesis, clock: u8) -> bool {
+        if h.has(Hypothesis::UNTIMED) {
+            return false;
+        }
+        match self.clocks.get(clock as usize) {
+            Some(Clock::Edge { bit, .. }) => !matches!(
+                self.modes[h.mode as usize].kind,
+                ModeKind::SensorStuck { bit: b, .. } | ModeKind::Glitch { bit: b, .. } if b == *bit
+            ),
+            _ => true,
+        }
+    }
+
+    fn admits(&self, h: Hypothesis, m: &Move, readings: &Readings) -> bool {
+        !m.timed
+            || self
+                .reading(h, m.clock, readings)
+                .is_none_or(|c| m.lo <= c && c <= m.hi)
+    }
+
+    fn may_have_happened(&self, h: Hypothesis, m: &Move, readings: &Readings) -> bool {
+        !m.timed || self.reading(h, m.clock, readings).is_none_or(|c| m.lo <= c)
+    }
+
+    /// Whether `h` has outstayed its state: every expected event's deadline passed.
+    fn expired(&self, h: Hypothesis, readings: &Readings) -> bool {
+        if self.frozen(h) {
+            return false;
+        }
+        if let Some((clock, limit)) = self.glitch_deadline(h)
+            && readings
+                .get(clock as usize)
+                .copied()
+                .flatten()
+                .is_some_and(|c| c > limit)
+        {
+            return true;
+        }
+        let Some(s) = self.model_state(h.phys) else {
+            return false;
+        };
+        let exp = &self.expected[s];
+        !exp.is_empty()
+            && exp.iter().all(|&k| {
+                let m = &self.moves[s][k];
+                m.timed && self.reading(h, m.clock, readings).is_some_and(|c| c > m.hi)
+            })
+    }
+
+    /// Whether `h` is a glitch that has shown longer than a glitch may.
+    pub fn glitch_expired(&self, h: Hypothesis, readings: &Readings) -> bool {
+        self.glitch_deadline(h).is_some_and(|(clock, limit)| {
+            readings
+                .get(clock as usize)
+                .copied()
+                .flatten()
+                .is_some_and(|c| c > limit)
+        })
+    }
+
+    /// Longest a glitch shows, in nanoseconds.
+    pub fn glitch_max(&self) -> Time {
+        self.glitch_max
+    }
+
+    /// The deadline of a showing glitch: (clock, latest reading).
+    fn glitch_deadline(&self, h: Hypothesis) -> Option<(u8, Time)> {
+        if !h.has(Hypothesis::GLITCH) {
+            return None;
+        }
+        let ModeKind::Glitch { bit, value } = self.modes[h.mode as usize].kind else {
+            return None;
+        };
+        if h.since == Hypothesis::SEEN {
+            let edge = Clock::Edge { bit, rising: value };
+            let clock = self.clocks.iter().position(|&c| c == edge)?;
+            Some((clock as u8, self.glitch_max))
+        } else {
+            let &(clock, hi, timed) = self.windows.get(h.since as usize)?;
+            timed.then_some((clock, hi + self.glitch_max))
+        }
+    }
+
+    /// Fault modes that may begin now, from the normal hypothesis `h`, without
+    /// anything observable at the onset.
+    fn silent_onsets(&self, h: Hypothesis, out: &mut Vec<Hypothesis>) {
+        let bit = |b: u8| h.phys >> b & 1 == 1;
+        for (m, mode) in self.modes.iter().enumerate().skip(1) {
+            let mode_id = m as u16;
+            let onset = match mode.kind {
+                ModeKind::Normal | ModeKind::Glitch { .. } => None,
+                ModeKind::SensorStuck { bit: b, value } => (bit(b) == value).then_some(h.phys),
+                ModeKind::ActuatorStuck { bit: b, value } => {
+                    if bit(b) == value {
+                        Some(h.phys)
+                    } else {
+                        // The part starts (or stops) moving at an unobserved moment.
+                        out.push(Hypothesis {
+                            mode: mode_id,
+                            flags: Hypothesis::UNTIMED,
+                            since: 0,
+                            phys: h.phys ^ (1 << b),
+                        });
+                        None
+                    }
+                }
+                ModeKind::BlockedAt { bit: b } => bit(b).then_some(h.phys),
+                ModeKind::BlockedBetween { from, to } => {
+                    let in_transit = !bit(from)
+                        && !bit(to)
+                        && self.model_state(h.phys).is_some_and(|s| {
+                            self.moves[s]
+                                .iter()
+                                .any(|mv| mv.changed >> to & 1 == 1 && !mv.command)
+                        });
+                    in_transit.then_some(h.phys)
+                }
+            };
+            if let Some(phys) = onset {
+                out.push(Hypothesis {
+                    mode: mode_id,
+                    flags: 0,
+                    since: 0,
+                    phys,
+                });
+            }
+        }
+    }
+
+    /// Brings a set of hypotheses up to the present: adds the fault modes that may
+    /// have begun silently and the hidden transitions that may have happened, and
+    /// drops the hypotheses whose deadlines have passed. `obs` is the observed state.
+    pub fn close(&self, obs: u32, hyps: &mut Vec<Hypothesis>, readings: &Readings) {
+        let mut i = 0;
+        let mut extra = Vec::new();
+        while i < hyps.len() {
+            let h = hyps[i];
+            i += 1;
+            extra.clear();
+            if h.mode == 0 {
+                self.silent_onsets(h, &mut extra);
+            }
+            if !self.frozen(h) {
+                let dec = self.decoupled(h);
+                if let Some(s) = self.model_state(h.phys) {
+                    for m in &self.moves[s] {
+                        if m.command || !self.may_have_happened(h, m, readings) {
+                            continue;
+                        }
+                        if m.changed & !dec == 0 {
+                            extra.push(Hypothesis {
+                                phys: h.phys ^ m.changed,
+                                ..h
+                            });
+                        } else if m.changed.count_ones() == 1 {
+                            self.hidden_by_glitch(h, m, &mut extra);
+                        }
+                    }
+                }
+            }
+            for mut e in extra.drain(..) {
+                self.normalise(obs, &mut e);
+                if !hyps.contains(&e) {
+                    hyps.push(e);
+                }
+            }
+        }
+        hyps.retain(|&h| !self.expired(h, readings));
+        hyps.sort_unstable();
+        hyps.dedup();
+    }
+
+    /// A real edge of a sensor that a glitch hides as it starts: the reading
+    /// keeps the old value, which is the glitch's value (seed 002's unexpected
+    /// rise or fall, beginning just as the real value leaves it).
+    fn hidden_by_glitch(&self, h: Hypothesis, hidden: &Move, out: &mut Vec<Hypothesis>) {
+        let changed = hidden.changed;
+        let own = self.modes[h.mode as usize].kind;
+        for (m, mode) in self.modes.iter().enumerate() {
+            let ModeKind::Glitch { bit, value } = mode.kind else {
+                continue;
+            };
+            let may_start = (h.mode == 0 || (own == mode.kind && !h.has(Hypothesis::GLITCH)))
+                && changed == 1 << bit
+                && (h.phys >> bit & 1 == 1) == value;
+            if may_start {
+                out.push(Hypothesis {
+                    mode: m as u16,
+                    flags: h.flags | Hypothesis::GLITCH,
+                    since: hidden.id as u16,
+                    phys: h.phys ^ changed,
+                });
+            }
+        }
+    }
+
+    /// A glitch is over once the real value has caught up with the shown one.
+    fn normalise(&self, obs: u32, h: &mut Hypothesis) {
+        if let ModeKind::Glitch { bit, .. } = self.modes[h.mode as usize].kind
+            && h.has(Hypothesis::GLITCH)
+            && (h.phys ^ obs) >> bit & 1 == 0
+        {
+            h.flags &= !Hypothesis::GLITCH;
+            h.since = 0;
+        }
+    }
+
+    /// The hypotheses after the scan that changed the observed bits `changed`
+    /// from the observed state `obs`, with the clocks read before the scan.
+    /// The result is not closed (see [`Self::close`]).
+    pub fn step(
+        &self,
+        obs: u32,
+        changed: u32,
+        hyps: &[Hypothesis],
+        readings: &Readings,
+    ) -> Vec<Hypothesis> {
+        let sensors = changed & !self.act_mask;
+        let orders = changed & self.act_mask;
+        let after = obs ^ changed;
+        let mut out = Vec::new();
+        let mut sensed = Vec::new();
+        for &h in hyps {
+            // A transition of the model that has the command and its sensor
+            // edges in one scan.
+            if orders != 0
+                && sensors != 0
+                && self.decoupled(h) & changed == 0
+                && !self.frozen(h)
+                && let Some(s) = self.model_state(h.phys)
+            {
+                for m in &self.moves[s] {
+                    if m.changed == changed && self.admits(h, m, readings) {
+                        out.push(Hypothesis {
+                            phys: h.phys ^ changed,
+                            ..h
+                        });
+                    }
+                }
+            }
+            sensed.clear();
+            self.explain(h, sensors, after, readings, &mut sensed);
+            for mut r in sensed.drain(..) {
+                if orders != 0 {
+                    let mut applied = orders;
+                    if let ModeKind::ActuatorStuck { bit, .. } = self.modes[r.mode as usize].kind
+                        && orders >> bit & 1 == 1
+                    {
+                        // The order did not reach the plant: the command clock no
+                        // longer dates the physical state.
+                        applied &= !(1 << bit);
+                        r.flags |= Hypothesis::UNTIMED;
+                    }
+                    r.phys ^= applied;
+                }
+                self.normalise(after, &mut r);
+                out.push(r);
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// Explains the observed sensor edges `rest` from hypothesis `h`: by the
+    /// model's transitions (their visible part), or by the fault's own effects.
+    fn explain(
+        &self,
+        h: Hypothesis,
+        rest: u32,
+        after: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        if rest == 0 {
+            out.push(h);
+            return;
+        }
+        let dec = self.decoupled(h);
+        if !self.frozen(h) {
+            match self.model_state(h.phys) {
+                Some(s) => {
+                    for m in &self.moves[s] {
+                        let visible = m.changed & !dec;
+                        if !m.command
+                            && visible != 0
+                            && visible & !rest == 0
+                            && self.admits(h, m, readings)
+                        {
+                            let next = Hypothesis {
+                                phys: h.phys ^ m.changed,
+                                ..h
+                            };
+                            self.explain(next, rest & !visible, after, readings, out);
+                        }
+                    }
+                }
+                // A state the model never saw (reached by an unusual command):
+                // the model cannot judge its sensors.
+                None if rest & dec == 0 => out.push(Hypothesis {
+                    phys: h.phys ^ rest,
+                    ..h
+                }),
+                None => {}
+            }
+        }
+        // The fault's own observable effects, one edge at a time.
+        for bit in 0..self.names.len() as u8 {
+            if rest >> bit & 1 == 0 {
+                continue;
+            }
+            let shown = after >> bit & 1 == 1;
+            let real = h.phys >> bit & 1 == 1;
+            let next_rest = rest & !(1 << bit);
+            let own = self.modes[h.mode as usize].kind;
+            if h.mode == 0 {
+                for (m, mode) in self.modes.iter().enumerate().skip(1) {
+                    match mode.kind {
+                        // Onset of a stuck sensor whose reading jumps to its value.
+                        ModeKind::SensorStuck { bit: b, value } if b == bit && shown == value => {
+                            if real != value {
+                                let next = Hypothesis {
+                                    mode: m as u16,
+                                    ..h
+                                };
+                                self.explain(next, next_rest, after, readings, out);
+                            }
+                        }
+                        ModeKind::Glitch { bit: b, value } if b == bit && shown == value => {
+                            if real != value {
+                                let next = Hypothesis {
+                                    mode: m as u16,
+                                    flags: h.flags | Hypothesis::GLITCH,
+                                    since: Hypothesis::SEEN,
+                                    phys: h.phys,
+                                };
+                                self.explain(next, next_rest, after, readings, out);
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+            } else if let ModeKind::Glitch { bit: b, value } = own
+                && b == bit
+            {
+                if !h.has(Hypothesis::GLITCH) && shown == value && real != value {
+                    let next = Hypothesis {
+                        flags: h.flags | Hypothesis::GLITCH,
+                        since: Hypothesis::SEEN,
+                        ..h
+                    };
+                    self.explain(next, next_rest, after, readings, out);
+                } else if h.has(Hypothesis::GLITCH) && shown == real {
+                    let next = Hypothesis {
+                        flags: h.flags & !Hypothesis::GLITCH,
+                        since: 0,
+                        ..h
+                    };
+                    self.explain(next, next_rest, after, readings, out);
+                }
+            }
+        }
+    }
+
+    /// The initial hypotheses for the observed state `obs`.
+    pub fn initial(&self, obs: u32) -> Vec<Hypothesis> {
+        vec![Hypothesis::normal(obs)]
+    }
+
+    /// The clock thresholds that matter to a set of hypotheses, per clock: guard
+    /// bounds (for events) and the moments time alone changes the set (hidden
+    /// transitions becoming possible, deadlines passing). A threshold `θ` is
+    /// passed when the reading is `>= θ`.
+    pub fn thresholds(&self, hyps: &[Hypothesis]) -> (Vec<Vec<Time>>, Vec<Vec<Time>>) {
+        let mut all = vec![Vec::new(); self.clocks.len()];
+        let mut timers = vec![Vec::new(); self.clocks.len()];
+        let glitches = self
+            .modes
+            .iter()
+            .any(|m| matches!(m.kind, ModeKind::Glitch { .. }));
+        for &h in hyps {
+            if h.has(Hypothesis::UNTIMED) || self.frozen(h) {
+                continue;
+            }
+            let Some(s) = self.model_state(h.phys) else {
+                continue;
+            };
+            let dec = self.decoupled(h);
+            for m in &self.moves[s] {
+                if !m.timed || !self.sees(h, m.clock) {
+                    continue;
+                }
+                let c = m.clock as usize;
+                all[c].push(m.lo);
+                all[c].push(m.hi + 1);
+                let hidden = m.changed & !dec == 0
+                    || (glitches && h.mode == 0 && m.changed.count_ones() == 1);
+                if !m.command && hidden {
+                    timers[c].push(m.lo);
+                }
+            }
+            if let Some((clock, limit)) = self.glitch_deadline(h) {
+                timers[clock as usize].push(limit + 1);
+                all[clock as usize].push(limit + 1);
+            }
+            for &k in &self.expected[s] {
+                let m = &self.moves[s][k];
+                if m.timed && self.sees(h, m.clock) {
+                    timers[m.clock as usize].push(m.hi + 1);
+                    all[m.clock as usize].push(m.hi + 1);
+                }
+            }
+        }
+        for v in all.iter_mut().chain(timers.iter_mut()) {
+            v.sort_unstable();
+            v.dedup();
+        }
+        (all, timers)
+    }
+}
+
+/// The mode a fault template gives in `part`, if it concerns the part.
+fn mode_kind(
+    template: &FaultTemplate,
+    part: &Part,
+    bit_of: &impl Fn(&str) -> Option<u8>,
+) -> Option<ModeKind> {
+    let element_is = |e: &str| part.element.as_deref() == Some(e);
+    Some(match template {
+        FaultTemplate::Stuck0(s) => ModeKind::SensorStuck {
+            bit: bit_of(s)?,
+            value: false,
+        },
+        FaultTemplate::Stuck1(s) => ModeKind::SensorStuck {
+            bit: bit_of(s)?,
+            value: true,
+        },
+        FaultTemplate::UnexpectedRise(s) => ModeKind::Glitch {
+            bit: bit_of(s)?,
+            value: true,
+        },
+        FaultTemplate::UnexpectedFall(s) => ModeKind::Glitch {
+            bit: bit_of(s)?,
+            value: false,
+        },
+        FaultTemplate::ActuatorStuck0(a) => ModeKind::ActuatorStuck {
+            bit: bit_of(a)?,
+            value: false,
+        },
+        FaultTemplate::ActuatorStuck1(a) => ModeKind::ActuatorStuck {
+            bit: bit_of(a)?,
+            value: true,
+        },
+        FaultTemplate::BlockedAt { element, at } if element_is(element) => {
+            ModeKind::BlockedAt { bit: bit_of(at)? }
+        }
+        FaultTemplate::BlockedBetween { element, from, to } if element_is(element) => {
+            ModeKind::BlockedBetween {
+                from: bit_of(from)?,
+                to: bit_of(to)?,
+            }
+        }
+        _ => return None,
+    })
+}

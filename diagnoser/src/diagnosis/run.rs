@@ -1,0 +1,431 @@
+//! Running every part's diagnoser over a stream of events.
+
+use serde::Serialize;
+
+use super::engine::Engine;
+use super::part::{Clock, PartDiagnoser};
+use crate::model::Model;
+use crate::{Event, Plant, Time, TimeUnit};
+
+/// A part's verdict (SPEC §3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VerdictKind {
+    /// Certainly no fault: the labels are `["N"]`.
+    Normal,
+    /// Certainly one fault: exactly one label, not `N`.
+    Certain,
+    /// Several candidate labels.
+    Ambiguous,
+}
+
+/// The label given when no mode of the model explains what was observed.
+pub const UNKNOWN_LABEL: &str = "unknown";
+
+/// A change of one part's verdict: one JSON line of `gardefou diagnose`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Verdict {
+    /// When it changed, in nanoseconds (written in the log's time form).
+    #[serde(skip)]
+    pub t: Time,
+    /// The part.
+    pub part: String,
+    /// Normal, certain or ambiguous.
+    pub verdict: VerdictKind,
+    /// `["N"]` when normal; otherwise the candidate fault labels.
+    pub labels: Vec<String>,
+    /// The `def_<partition>` flags raised so far (they are never lowered).
+    pub flags: Vec<String>,
+    /// Partitions of the candidate labels, when not normal.
+    pub suspects: Vec<String>,
+    /// What was observed, in words.
+    pub reason: String,
+}
+
+/// Settings of the diagnosers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DiagnoserOptions {
+    /// Longest an unexpected edge (seed 002's unexpected rise or fall) shows
+    /// before the sensor reads its real value again, in nanoseconds. Longer, it
+    /// is a stuck sensor.
+    pub glitch_max: Time,
+}
+
+impl Default for DiagnoserOptions {
+    fn default() -> Self {
+        DiagnoserOptions {
+            glitch_max: 100 * crate::MS,
+        }
+    }
+}
+
+/// Per part, the state of the replay.
+#[derive(Debug, Clone)]
+struct PartRun {
+    state: u32,
+    obs: u32,
+    origins: Vec<Option<Time>>,
+    /// Raised flags, as partition bits (sticky).
+    flags: u32,
+    /// Labels index of the last verdict given.
+    shown: u32,
+    next_timer: Option<Time>,
+    /// The last command's edges, for explanations.
+    last_command: Option<(u32, u32)>,
+    /// First time the verdict left normal.
+    detected: Option<Time>,
+}
+
+/// What a part's diagnoser concluded, at the end of a replay.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PartSummary {
+    /// The part.
+    pub part: String,
+    /// Its last verdict.
+    pub verdict: VerdictKind,
+    /// Its last labels.
+    pub labels: Vec<String>,
+    /// First time its verdict left normal, in nanoseconds.
+    #[serde(skip)]
+    pub detected: Option<Time>,
+    /// Flags raised.
+    pub flags: Vec<String>,
+    /// Verdict changes.
+    pub changes: u64,
+}
+
+/// Every part's diagnoser, fed with a plant's events.
+///
+/// Events go in with [`PlantDiagnoser::push`], in time order; events with the
+/// same time are one PLC scan. Verdict changes come out through the callback,
+/// including those that time alone causes (a deadline passing) — at the
+/// deadline, as soon as a later event or [`PlantDiagnoser::advance_to`] shows
+/// the time has come.
+#[derive(Debug, Clone)]
+pub struct PlantDiagnoser {
+    engines: Vec<Engine>,
+    runs: Vec<PartRun>,
+    /// Per plant signal, the parts that read it and at which bit.
+    routes: Vec<Vec<(u16, u8)>>,
+    pending: Vec<(u16, u32)>,
+    scan: Option<Time>,
+    earliest: Option<Time>,
+    unit: TimeUnit,
+    changes: Vec<u64>,
+    before: Vec<Option<Time>>,
+    after: Vec<Option<Time>>,
+}
+
+impl PlantDiagnoser {
+    /// Builds the diagnosers of every part of `plant` that `model` has learned.
+    pub fn new(plant: &Plant, model: &Model, options: &DiagnoserOptions) -> Result<Self, String> {
+        if model.plant != plant.name {
+            return Err(format!(
+                "the model was learned for plant '{}', not '{}'",
+                model.plant, plant.name
+            ));
+        }
+        let scale = model.time_unit.nanos() as f64;
+        let mut engines = Vec::new();
+        for part in &plant.parts {
+            let Some(pm) = model.parts.iter().find(|p| p.name == part.name) else {
+                return Err(format!("the model has no part '{}'", part.name));
+            };
+            engines.push(Engine::new(PartDiagnoser::build(
+                plant,
+                part,
+                pm,
+                scale,
+                options.glitch_max,
+            )?));
+        }
+        let mut routes = vec![Vec::new(); plant.signals.len()];
+        for (p, e) in engines.iter().enumerate() {
+            for (bit, s) in e.part.signals.iter().enumerate() {
+                if let Some(r) = routes.get_mut(s.index()) {
+                    r.push((p as u16, bit as u8));
+                }
+            }
+        }
+        Ok(PlantDiagnoser {
+            runs: Vec::new(),
+            changes: vec![0; engines.len()],
+            engines,
+            routes,
+            pending: Vec::new(),
+            scan: None,
+            earliest: None,
+            unit: model.time_unit,
+            before: Vec::new(),
+            after: Vec::new(),
+        })
+    }
+
+    /// The parts' engines.
+    pub fn engines(&self) -> &[Engine] {
+        &self.engines
+    }
+
+    /// Starts a replay at `t0` with every signal's initial value.
+    pub fn start(&mut self, t0: Time, initial: &[bool]) {
+        self.runs.clear();
+        self.pending.clear();
+        self.scan = None;
+        self.earliest = None;
+        self.changes.iter_mut().for_each(|c| *c = 0);
+        for e in &mut self.engines {
+            let obs = e.part.signals.iter().enumerate().fold(0u32, |v, (b, s)| {
+                v | (u32::from(initial.get(s.index()).copied().unwrap_or(false)) << b)
+            });
+            let origins = vec![None; e.part.clocks.len()];
+            let state = e.initial(obs, &origins);
+            let shown = e.state(state).labels;
+            self.runs.push(PartRun {
+                state,
+                obs,
+                origins,
+                flags: 0,
+                shown,
+                next_timer: None,
+                last_command: None,
+                detected: None,
+            });
+        }
+        let _ = t0;
+    }
+
+    /// Feeds one event. Verdict changes it completes go to `out`.
+    #[inline]
+    pub fn push(&mut self, e: Event, out: &mut impl FnMut(Verdict)) {
+        if self.scan != Some(e.t) {
+            if let Some(t) = self.scan {
+                self.flush(t, out);
+            }
+            self.scan = Some(e.t);
+        }
+        let Some(routes) = self.routes.get(e.signal.index()) else {
+            return;
+        };
+        for &(part, bit) in routes {
+            let mask = 1u32 << bit;
+            let i = match self.pending.iter().position(|p| p.0 == part) {
+                Some(i) => i,
+                None => {
+                    self.pending.push((part, 0));
+                    self.pending.len() - 1
+                }
+            };
+            let now = (self.runs[part as usize].obs ^ self.pending[i].1) & mask != 0;
+            if now != e.value {
+                self.pending[i].1 ^= mask;
+            }
+        }
+    }
+
+    /// Completes the current scan and gives every verdict change due up to `t`
+    /// (deadlines that have passed with no event).
+    pub fn advance_to(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
+        if let Some(s) = self.scan.take() {
+            self.flush(s, out);
+        }
+        self.fire_timers(t, out);
+    }
+
+    /// Ends a replay at `end` (the time of the log's last record) and summarises
+    /// each part.
+    pub fn finish(&mut self, end: Time, out: &mut impl FnMut(Verdict)) -> Vec<PartSummary> {
+        self.advance_to(end, out);
+        self.runs
+            .iter()
+            .zip(&self.engines)
+            .zip(&self.changes)
+            .map(|((run, e), &changes)| {
+                let v = self.verdict_of(e, run, 0, String::new());
+                PartSummary {
+                    part: e.part.name.clone(),
+                    verdict: v.verdict,
+                    labels: v.labels,
+                    detected: run.detected,
+                    flags: v.flags,
+                    changes,
+                }
+            })
+            .collect()
+    }
+
+    fn fire_timers(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
+        while let Some(at) = self.earliest {
+            if at > t {
+                return;
+            }
+            // Fire the earliest timer of all parts, then look again.
+            let mut first: Option<(usize, Time)> = None;
+            for (p, run) in self.runs.iter().enumerate() {
+                if let Some(x) = run.next_timer
+                    && first.is_none_or(|(_, f)| x < f)
+                {
+                    first = Some((p, x));
+                }
+            }
+            match first {
+                Some((p, x)) if x <= t => self.fire(p, x, out),
+                Some((_, x)) => {
+                    self.earliest = Some(x);
+                    return;
+                }
+                None => {
+                    self.earliest = None;
+                    return;
+                }
+            }
+        }
+    }
+
+    fn fire(&mut self, p: usize, at: Time, out: &mut impl FnMut(Verdict)) {
+        let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
+        read(&run.origins, at, &mut self.before);
+        let previous = run.state;
+        run.state = engine.advance(run.state, &self.before);
+        run.next_timer = engine.next_timer(run.state, &run.origins, at);
+        self.earliest = earliest(&self.runs);
+        // The deadline itself is the last moment the event could still have come.
+        self.report(p, at - 1, previous, None, out);
+    }
+
+    fn flush(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
+        if self.earliest.is_some_and(|x| x <= t) {
+            self.fire_timers(t, out);
+        }
+        let mut pending = std::mem::take(&mut self.pending);
+        for &(part, changed) in &pending {
+            if changed == 0 {
+                continue;
+            }
+            let p = part as usize;
+            let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
+            read(&run.origins, t, &mut self.before);
+            let previous = run.state;
+            let obs_before = run.obs;
+            let advanced = engine.advance(run.state, &self.before);
+            // The scan resets the clocks of its edges.
+            let after_obs = run.obs ^ changed;
+            let acts = engine.part.actuator_mask();
+            for (c, clock) in engine.part.clocks.iter().enumerate() {
+                let reset = match *clock {
+                    Clock::Command => changed & acts != 0,
+                    Clock::Edge { bit, rising } => {
+                        changed >> bit & 1 == 1 && (after_obs >> bit & 1 == 1) == rising
+                    }
+                };
+                if reset {
+                    run.origins[c] = Some(t);
+                }
+            }
+            read(&run.origins, t, &mut self.after);
+            run.state = engine.scan(advanced, changed, &self.before, &self.after);
+            run.obs = after_obs;
+            if changed & acts != 0 {
+                run.last_command = Some((obs_before, changed & acts));
+            }
+            run.next_timer = engine.next_timer(run.state, &run.origins, t);
+            if let Some(x) = run.next_timer
+                && self.earliest.is_none_or(|e| x < e)
+            {
+                self.earliest = Some(x);
+            }
+            if engine.state(run.state).labels != engine.state(previous).labels {
+                self.report(p, t, advanced, Some((obs_before, changed)), out);
+            }
+        }
+        pending.clear();
+        self.pending = pending;
+    }
+
+    /// Emits a verdict if part `p`'s labels changed since the last one given.
+    fn report(
+        &mut self,
+        p: usize,
+        t: Time,
+        previous: u32,
+        scan: Option<(u32, u32)>,
+        out: &mut impl FnMut(Verdict),
+    ) {
+        let (engine, run) = (&self.engines[p], &mut self.runs[p]);
+        let now = engine.state(run.state).labels;
+        if now == run.shown {
+            return;
+        }
+        let labels = engine.labels(now);
+        let new_flags = run.flags | labels.flags;
+        let reason = super::explain::reason(
+            engine,
+            previous,
+            run.state,
+            scan,
+            &self.before,
+            run.last_command,
+            self.unit,
+        );
+        run.flags = new_flags;
+        run.shown = now;
+        if !labels.normal && run.detected.is_none() {
+            run.detected = Some(t);
+        }
+        self.changes[p] += 1;
+        let mut v = self.verdict_of(engine, &self.runs[p], t, reason);
+        v.t = t;
+        out(v);
+    }
+
+    fn verdict_of(&self, engine: &Engine, run: &PartRun, t: Time, reason: String) -> Verdict {
+        let part = &engine.part;
+        let labels = engine.labels(run.shown);
+        let names: Vec<String> = if labels.normal {
+            vec!["N".to_string()]
+        } else if labels.modes.is_empty() {
+            vec![UNKNOWN_LABEL.to_string()]
+        } else {
+            labels
+                .modes
+                .iter()
+                .map(|&m| part.modes[m as usize].label.clone())
+                .collect()
+        };
+        let verdict = if labels.normal {
+            VerdictKind::Normal
+        } else if names.len() == 1 {
+            VerdictKind::Certain
+        } else {
+            VerdictKind::Ambiguous
+        };
+        let bits = |mask: u32| -> Vec<String> {
+            part.partitions
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| mask >> i & 1 == 1)
+                .map(|(_, n)| n.clone())
+                .collect()
+        };
+        Verdict {
+            t,
+            part: part.name.clone(),
+            verdict,
+            labels: names,
+            flags: bits(run.flags)
+                .into_iter()
+                .map(|n| format!("def_{n}"))
+                .collect(),
+            suspects: bits(labels.suspects),
+            reason,
+        }
+    }
+}
+
+fn read(origins: &[Option<Time>], t: Time, into: &mut Vec<Option<Time>>) {
+    into.clear();
+    into.extend(origins.iter().map(|o| o.map(|o| t - o)));
+}
+
+fn earliest(runs: &[PartRun]) -> Option<Time> {
+    runs.iter().filter_map(|r| r.next_timer).min()
+}
