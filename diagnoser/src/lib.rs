@@ -9,8 +9,10 @@
 //! rewriting the safety filter (`filter-coupling`), or simulating plants
 //! (`datasets`).
 
+pub mod diagnosis;
 pub mod error;
 pub mod expr;
+pub mod faudes;
 pub mod fault;
 pub mod log;
 pub mod model;

@@ -8,6 +8,7 @@
 //!   built on the fly and memoised, so a replay is a table lookup per scan.
 //! - [`run`]: every part's diagnoser fed with a plant's events, giving the
 //!   verdict changes of SPEC §3.
+//! - [`fusion`]: the coordinator, combining the parts' verdicts into a plant view.
 //!
 //! Labels, verdicts and flags follow SPEC §3: the verdict is normal while the
 //! normal hypothesis survives; otherwise the labels are the remaining fault
@@ -16,6 +17,7 @@
 
 pub mod engine;
 mod explain;
+pub mod fusion;
 pub mod part;
 pub mod run;
 

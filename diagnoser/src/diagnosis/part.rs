@@ -795,31 +795,30 @@ impl PartDiagnoser {
             let next_rest = rest & !(1 << bit);
             let own = self.modes[h.mode as usize].kind;
             if h.mode == 0 {
+                // A reading that jumps to the value of a fault that begins now:
+                // a stuck sensor's onset, or an unexpected edge.
+                if shown == real {
+                    continue;
+                }
                 for (m, mode) in self.modes.iter().enumerate().skip(1) {
-                    match mode.kind {
-                        // Onset of a stuck sensor whose reading jumps to its value.
+                    let next = match mode.kind {
                         ModeKind::SensorStuck { bit: b, value } if b == bit && shown == value => {
-                            if real != value {
-                                let next = Hypothesis {
-                                    mode: m as u16,
-                                    ..h
-                                };
-                                self.explain(next, next_rest, after, readings, out);
+                            Hypothesis {
+                                mode: m as u16,
+                                ..h
                             }
                         }
                         ModeKind::Glitch { bit: b, value } if b == bit && shown == value => {
-                            if real != value {
-                                let next = Hypothesis {
-                                    mode: m as u16,
-                                    flags: h.flags | Hypothesis::GLITCH,
-                                    since: Hypothesis::SEEN,
-                                    phys: h.phys,
-                                };
-                                self.explain(next, next_rest, after, readings, out);
+                            Hypothesis {
+                                mode: m as u16,
+                                flags: h.flags | Hypothesis::GLITCH,
+                                since: Hypothesis::SEEN,
+                                phys: h.phys,
                             }
                         }
-                        _ => {}
-                    }
+                        _ => continue,
+                    };
+                    self.explain(next, next_rest, after, readings, out);
                 }
             } else if let ModeKind::Glitch { bit: b, value } = own
                 && b == bit

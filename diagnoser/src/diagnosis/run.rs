@@ -3,6 +3,7 @@
 use serde::Serialize;
 
 use super::engine::Engine;
+use super::fusion::Coordinator;
 use super::part::{Clock, PartDiagnoser};
 use crate::model::Model;
 use crate::{Event, Plant, Time, TimeUnit};
@@ -114,6 +115,7 @@ pub struct PlantDiagnoser {
     changes: Vec<u64>,
     before: Vec<Option<Time>>,
     after: Vec<Option<Time>>,
+    coordinator: Coordinator,
 }
 
 impl PlantDiagnoser {
@@ -147,7 +149,18 @@ impl PlantDiagnoser {
                 }
             }
         }
+        let coordinator = Coordinator::new(
+            plant,
+            engines
+                .iter()
+                .map(|e| {
+                    let labels = e.part.modes[1..].iter().map(|m| m.label.clone()).collect();
+                    (e.part.name.clone(), labels)
+                })
+                .collect(),
+        );
         Ok(PlantDiagnoser {
+            coordinator,
             runs: Vec::new(),
             changes: vec![0; engines.len()],
             engines,
@@ -173,6 +186,7 @@ impl PlantDiagnoser {
         self.scan = None;
         self.earliest = None;
         self.changes.iter_mut().for_each(|c| *c = 0);
+        self.coordinator.reset();
         for e in &mut self.engines {
             let obs = e.part.signals.iter().enumerate().fold(0u32, |v, (b, s)| {
                 v | (u32::from(initial.get(s.index()).copied().unwrap_or(false)) << b)
@@ -251,6 +265,11 @@ impl PlantDiagnoser {
                 }
             })
             .collect()
+    }
+
+    /// The coordinator's plant view of the parts' latest verdicts.
+    pub fn plant_view(&mut self, t: Time) -> Verdict {
+        self.coordinator.view(t)
     }
 
     fn fire_timers(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
@@ -374,7 +393,11 @@ impl PlantDiagnoser {
         self.changes[p] += 1;
         let mut v = self.verdict_of(engine, &self.runs[p], t, reason);
         v.t = t;
+        let view = self.coordinator.update(p, &v);
         out(v);
+        if let Some(view) = view {
+            out(view);
+        }
     }
 
     fn verdict_of(&self, engine: &Engine, run: &PartRun, t: Time, reason: String) -> Verdict {
