@@ -36,8 +36,8 @@ pub struct DiagnoseArgs {
     /// value again (longer, it is a stuck sensor).
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
-    /// Print, per part, the final verdict, first detection time and flags,
-    /// instead of the verdict changes.
+    /// Print, per part, a table of the final verdict, first detection time and
+    /// flags, instead of the verdict changes.
     #[arg(long)]
     summary: bool,
 }
@@ -125,7 +125,16 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
             read += batch.len() as u64;
             bar.set_position(read);
         }
-        let summary = diagnoser.finish(last, &mut emit);
+        let mut summary = diagnoser.finish(last, &mut emit);
+        let view = diagnoser.plant_view(last);
+        summary.push(PartSummary {
+            part: view.part,
+            verdict: view.verdict,
+            labels: view.labels,
+            detected: summary.iter().filter_map(|p| p.detected).min(),
+            flags: view.flags,
+            changes: 0,
+        });
         if let Some(e) = write_err {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
                 return Ok(());
@@ -136,28 +145,66 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     }
     bar.finish_and_clear();
     if args.summary {
-        for (log, time, parts) in &summaries {
-            for p in parts {
-                let mut v = serde_json::to_value(p).unwrap_or_default();
-                if let Some(obj) = v.as_object_mut() {
-                    let detected = match (p.detected, time) {
-                        (None, _) => serde_json::Value::Null,
-                        (Some(t), TimeFormat::Numeric(_)) => {
-                            serde_json::from_str(&time.format(t)).unwrap_or_default()
-                        }
-                        (Some(t), TimeFormat::Rfc3339) => serde_json::Value::String(time.format(t)),
-                    };
-                    obj.insert("first_detection".to_string(), detected);
-                    if several {
-                        obj.insert("log".to_string(), serde_json::Value::String(log.clone()));
-                    }
-                }
-                writeln!(out, "{v}").map_err(io)?;
-            }
-        }
+        write_summary(&mut out, &summaries, several).map_err(io)?;
     }
     match out.flush() {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(io(e)),
         _ => Ok(()),
     }
+}
+
+/// The per-part summary as an aligned table: final verdict, labels, first
+/// detection and flags.
+fn write_summary(
+    out: &mut impl Write,
+    summaries: &[(String, TimeFormat, Vec<PartSummary>)],
+    several: bool,
+) -> std::io::Result<()> {
+    for (log, time, parts) in summaries {
+        if several {
+            writeln!(out, "{log}")?;
+        }
+        let rows: Vec<[String; 5]> = parts
+            .iter()
+            .map(|p| {
+                [
+                    p.part.clone(),
+                    serde_json::to_value(p.verdict)
+                        .ok()
+                        .and_then(|v| v.as_str().map(str::to_string))
+                        .unwrap_or_default(),
+                    p.labels.join(" "),
+                    p.detected.map_or("-".to_string(), |t| time.format(t)),
+                    if p.flags.is_empty() {
+                        "-".to_string()
+                    } else {
+                        p.flags.join(" ")
+                    },
+                ]
+            })
+            .collect();
+        let head = ["part", "verdict", "labels", "first detection", "flags"];
+        let mut width = head.map(str::len);
+        for r in &rows {
+            for (w, c) in width.iter_mut().zip(r) {
+                *w = (*w).max(c.chars().count());
+            }
+        }
+        let line = |cells: [&str; 5]| {
+            let mut s = String::new();
+            for (i, (c, w)) in cells.iter().zip(width).enumerate() {
+                if i + 1 == cells.len() {
+                    s.push_str(c);
+                } else {
+                    s.push_str(&format!("{c:<w$}  "));
+                }
+            }
+            s
+        };
+        writeln!(out, "{}", line(head))?;
+        for r in &rows {
+            writeln!(out, "{}", line([&r[0], &r[1], &r[2], &r[3], &r[4]]))?;
+        }
+    }
+    Ok(())
 }

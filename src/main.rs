@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod check;
 mod diagnose;
 mod learn;
 mod simulate;
@@ -26,6 +27,8 @@ enum Command {
     Learn(learn::LearnArgs),
     /// Replay logs through every part's diagnoser: verdict changes as JSON lines.
     Diagnose(diagnose::DiagnoseArgs),
+    /// Diagnosability of every fault, and the size of each part's diagnoser.
+    Check(check::CheckArgs),
     /// Simulate a reference plant (with injected faults) and write its logs.
     Simulate(simulate::SimulateArgs),
 }
@@ -71,6 +74,7 @@ fn main() -> ExitCode {
         Command::Learn(args) => learn::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Diagnose(args) => diagnose::run(args),
+        Command::Check(args) => check::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -15,6 +15,8 @@
 //! modes, `def_<partition>` is raised when they all lie in one partition, and the
 //! suspects are the partitions they touch.
 
+pub mod compile;
+pub mod diagnosability;
 pub mod engine;
 mod explain;
 pub mod fusion;

@@ -1,0 +1,129 @@
+//! Diagnosis speed: every part diagnoser of the sorting line fed with events
+//! already in memory (no parsing), in normal operation and after a fault.
+//!
+//! The model is learned from one simulated hour (seed 3); the replayed logs are
+//! 100 simulated hours with another seed: normal operation; F2 (C4 stuck at 1)
+//! from minute 10, after which the turntable stops and the line soon halts, so
+//! the log is short; and F7 (unexpected rises of C4) from minute 10, after which
+//! the line keeps running, so nearly the whole log goes through the diagnosers
+//! after detection.
+//!
+//! Run with `cargo bench --bench diagnose`.
+
+use std::hint::black_box;
+use std::path::PathBuf;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use datasets::inject::{FaultSpec, Injection};
+use datasets::sim::{MemorySink, SimConfig, run};
+use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
+use diagnoser::model::Model;
+use diagnoser::{Event, MS, Plant, SECOND, Time, TimeFormat};
+use learning::ingest::{LogFormat, LogStream};
+use learning::learn::{LearnOptions, Learner};
+
+/// Simulated hours of each replayed log.
+const HOURS: Time = 100;
+
+/// Simulates the sorting line for `duration` with `faults` (e.g. `F2@10min`).
+fn simulate(plant: &Plant, duration: Time, seed: u64, faults: &[&str]) -> MemorySink {
+    let faults = faults
+        .iter()
+        .map(|f| {
+            let spec: FaultSpec = f.parse().expect("valid fault spec");
+            Injection::resolve(&spec, plant).expect("fault of the sorting plant")
+        })
+        .collect();
+    let config = SimConfig {
+        duration,
+        scan_period: 10 * MS,
+        seed,
+        faults,
+    };
+    let mut line = SortingLine::new(SortingConfig::default());
+    let mut ctl = SynthesisedControl::new(line.ids());
+    let mut sink = MemorySink::default();
+    run(&mut line, &mut ctl, &config, &mut sink, |_| {}).expect("in-memory simulation");
+    sink
+}
+
+/// Learns the model from one simulated hour of normal operation, in memory.
+fn learn(plant: &Plant) -> Model {
+    let log = simulate(plant, 3600 * SECOND, 3, &[]);
+    let batches: Vec<Vec<Event>> = log.events.chunks(1 << 16).map(<[Event]>::to_vec).collect();
+    let stream = LogStream {
+        path: PathBuf::from("simulated-1h-seed-3"),
+        format: LogFormat::EventsCsv,
+        time: TimeFormat::Numeric(plant.time_unit),
+        start: log.start,
+        initial: log.initial,
+        batches: Box::new(batches.into_iter().map(Ok)),
+    };
+    let mut learner = Learner::new(plant, LearnOptions::default()).expect("learnable plant");
+    learner
+        .learn_log(stream, |_| {})
+        .expect("in-memory log is valid");
+    learner.finish()
+}
+
+/// Replays `log` from its start to its last event; returns the verdicts given.
+fn replay(diagnoser: &mut PlantDiagnoser, log: &MemorySink) -> u64 {
+    let mut verdicts = 0u64;
+    let mut out = |v: Verdict| {
+        black_box(&v);
+        verdicts += 1;
+    };
+    diagnoser.start(log.start, &log.initial);
+    for &e in &log.events {
+        diagnoser.push(e, &mut out);
+    }
+    let end = log.events.last().map_or(log.start, |e| e.t);
+    black_box(diagnoser.finish(end, &mut out));
+    verdicts
+}
+
+fn diagnose(c: &mut Criterion) {
+    let plant = plant();
+    let model = learn(&plant);
+    let options = DiagnoserOptions::default();
+    let logs = [
+        ("normal", simulate(&plant, HOURS * 3600 * SECOND, 7, &[])),
+        (
+            "f2_at_10min",
+            simulate(&plant, HOURS * 3600 * SECOND, 7, &["F2@10min"]),
+        ),
+        (
+            "f7_at_10min",
+            simulate(&plant, HOURS * 3600 * SECOND, 7, &["F7@10min"]),
+        ),
+    ];
+
+    let mut group = c.benchmark_group(format!("diagnose_sorting_{HOURS}h"));
+    group.sample_size(10);
+    for (name, log) in &logs {
+        let mut diagnoser =
+            PlantDiagnoser::new(&plant, &model, &options).expect("model fits the plant");
+        // The diagnoser automaton is built on the fly: one replay builds the part
+        // of it this log visits, so the samples measure the steady state.
+        let verdicts = replay(&mut diagnoser, log);
+        eprintln!(
+            "{name}: {} events over {HOURS} h, {verdicts} verdict change(s)",
+            log.events.len()
+        );
+        group.throughput(Throughput::Elements(log.events.len() as u64));
+        group.bench_function(*name, |b| b.iter(|| replay(&mut diagnoser, log)));
+        // From a fresh diagnoser: includes building the automaton.
+        group.bench_function(format!("{name}_cold"), |b| {
+            b.iter(|| {
+                let mut fresh =
+                    PlantDiagnoser::new(&plant, &model, &options).expect("model fits the plant");
+                replay(&mut fresh, log)
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, diagnose);
+criterion_main!(benches);

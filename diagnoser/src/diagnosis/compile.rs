@@ -1,0 +1,360 @@
+//! The whole diagnoser automaton of a part, compiled ahead of time (seed 002,
+//! Fig. 12): every state reachable from the model's states, labelled with its
+//! fault labels, with transitions on observed scans (and the clock interval in
+//! which they lead there) and on deadlines passing.
+//!
+//! The exploration runs the same [`Engine`] as a replay, on representative clock
+//! readings: each clock is read at 0, at each threshold that matters to the
+//! current state, or not at all (unknown, at a log's start). Readings saturate
+//! past the part's largest threshold, so the exploration is finite. Commands
+//! come as the control issued them in the learned runs: in the same observed
+//! states (seed 002 does not blame the control). It is for
+//! sizes, pictures and the diagnosability check; a replay never needs it.
+
+use std::collections::{HashMap, VecDeque};
+use std::fmt::Write as _;
+
+use petgraph::graph::{DiGraph, NodeIndex};
+
+use super::engine::Engine;
+use super::part::Clock;
+use crate::Time;
+
+/// An abstract state of the exploration: a diagnoser state and the clock
+/// readings it was reached with.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Node {
+    /// The engine's state.
+    pub state: u32,
+    /// Representative clock readings (nanoseconds; `None`: unknown).
+    pub readings: Vec<Option<Time>>,
+}
+
+/// What a compiled transition is taken on.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum Trigger {
+    /// An observed scan changing these bits of the part's state vector.
+    Scan(u32),
+    /// Time passing until `clock` reads `at` with no event.
+    Time {
+        /// Index of the clock.
+        clock: u8,
+        /// The reading reached.
+        at: Time,
+    },
+}
+
+/// The compiled diagnoser of one part.
+#[derive(Debug, Clone)]
+pub struct Compiled {
+    /// Nodes and transitions.
+    pub graph: DiGraph<Node, Trigger>,
+    /// Whether the exploration stopped at its size limit.
+    pub truncated: bool,
+}
+
+/// Size of a compiled automaton.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Size {
+    /// Distinct diagnoser states (sets of hypotheses), whatever the clocks.
+    pub states: usize,
+    /// Distinct (state, scan or deadline, state) transitions.
+    pub transitions: usize,
+    /// Nodes of the exploration (states with clock regions).
+    pub nodes: usize,
+}
+
+/// Stops the exploration past this many nodes.
+pub const NODE_LIMIT: usize = 200_000;
+
+impl Compiled {
+    /// Explores every state reachable from the model's states (normal, clocks
+    /// unknown and then at 0), with observed scans of at most `max_bits` edges.
+    pub fn explore(engine: &mut Engine, max_bits: u32) -> Compiled {
+        let part = engine.part.clone();
+        let nbits = part.names.len() as u32;
+        let clocks = part.clocks.len();
+        // Largest threshold per clock, for saturation.
+        let masks: Vec<u32> = (1u32..(1 << nbits))
+            .filter(|m| m.count_ones() <= max_bits)
+            .collect();
+        let mut graph: DiGraph<Node, Trigger> = DiGraph::new();
+        let mut index: HashMap<Node, NodeIndex> = HashMap::new();
+        let mut queue: VecDeque<NodeIndex> = VecDeque::new();
+        let mut cap: Vec<Time> = vec![0; clocks];
+        let mut add = |engine: &Engine,
+                       graph: &mut DiGraph<Node, Trigger>,
+                       queue: &mut VecDeque<NodeIndex>,
+                       cap: &mut Vec<Time>,
+                       node: Node| {
+            if let Some(&i) = index.get(&node) {
+                return i;
+            }
+            for (c, th) in engine.state(node.state).thresholds.iter().enumerate() {
+                if let Some(&m) = th.last() {
+                    cap[c] = cap[c].max(m);
+                }
+            }
+            let i = graph.add_node(node.clone());
+            index.insert(node, i);
+            queue.push_back(i);
+            i
+        };
+        for &v in part.state_vectors() {
+            let unknown = vec![None; clocks];
+            let s = engine.initial(v, &unknown);
+            add(
+                engine,
+                &mut graph,
+                &mut queue,
+                &mut cap,
+                Node {
+                    state: s,
+                    readings: unknown,
+                },
+            );
+        }
+        let mut truncated = false;
+        while let Some(i) = queue.pop_front() {
+            if graph.node_count() > NODE_LIMIT {
+                truncated = true;
+                break;
+            }
+            let node = graph[i].clone();
+            // Time passing to the next threshold of any clock.
+            let st = engine.state(node.state).clone();
+            let mut step: Option<(Time, u8)> = None;
+            for (c, th) in st.thresholds.iter().enumerate() {
+                if let Some(Some(v)) = node.readings.get(c) {
+                    let k = th.partition_point(|&x| x <= *v);
+                    if let Some(&x) = th.get(k) {
+                        let d = x - v;
+                        if step.is_none_or(|(best, _)| d < best) {
+                            step = Some((d, c as u8));
+                        }
+                    }
+                }
+            }
+            if let Some((d, c)) = step {
+                let readings: Vec<Option<Time>> = node
+                    .readings
+                    .iter()
+                    .enumerate()
+                    .map(|(k, r)| r.map(|v| (v + d).min(cap[k] + 1)))
+                    .collect();
+                let s = engine.advance(node.state, &readings);
+                let at = readings[c as usize].unwrap_or(0);
+                let j = add(
+                    engine,
+                    &mut graph,
+                    &mut queue,
+                    &mut cap,
+                    Node { state: s, readings },
+                );
+                if j != i {
+                    graph.add_edge(i, j, Trigger::Time { clock: c, at });
+                }
+            }
+            // Observed scans.
+            let acts = part.actuator_mask();
+            for &ch in &masks {
+                // The control is not blamed (seed 002): it issues commands as in
+                // the learned runs, in the observed states it issued them in.
+                if ch & acts != 0
+                    && !part
+                        .model_state(st.obs)
+                        .is_some_and(|s| part.moves(s).iter().any(|m| m.changed == ch))
+                {
+                    continue;
+                }
+                let after_obs = st.obs ^ ch;
+                let after: Vec<Option<Time>> = part
+                    .clocks
+                    .iter()
+                    .zip(&node.readings)
+                    .map(|(clock, r)| {
+                        let reset = match *clock {
+                            Clock::Command => ch & acts != 0,
+                            Clock::Edge { bit, rising } => {
+                                ch >> bit & 1 == 1 && (after_obs >> bit & 1 == 1) == rising
+                            }
+                        };
+                        if reset { Some(0) } else { *r }
+                    })
+                    .collect();
+                let s = engine.scan(node.state, ch, &node.readings, &after);
+                if engine.state(s).hyps.is_empty() {
+                    continue;
+                }
+                let j = add(
+                    engine,
+                    &mut graph,
+                    &mut queue,
+                    &mut cap,
+                    Node {
+                        state: s,
+                        readings: after,
+                    },
+                );
+                graph.add_edge(i, j, Trigger::Scan(ch));
+            }
+        }
+        Compiled { graph, truncated }
+    }
+
+    /// Its size.
+    pub fn size(&self) -> Size {
+        let mut states: Vec<u32> = self.graph.node_weights().map(|n| n.state).collect();
+        states.sort_unstable();
+        states.dedup();
+        let mut edges: Vec<(u32, Trigger, u32)> = self
+            .graph
+            .edge_indices()
+            .filter_map(|e| {
+                let (a, b) = self.graph.edge_endpoints(e)?;
+                let t = match &self.graph[e] {
+                    Trigger::Time { clock, .. } => Trigger::Time {
+                        clock: *clock,
+                        at: 0,
+                    },
+                    other => other.clone(),
+                };
+                let (sa, sb) = (self.graph[a].state, self.graph[b].state);
+                (sa != sb || matches!(t, Trigger::Scan(_))).then_some((sa, t, sb))
+            })
+            .collect();
+        edges.sort_unstable_by(|a, b| {
+            (a.0, format!("{:?}", a.1), a.2).cmp(&(b.0, format!("{:?}", b.1), b.2))
+        });
+        edges.dedup();
+        Size {
+            states: states.len(),
+            transitions: edges.len(),
+            nodes: self.graph.node_count(),
+        }
+    }
+
+    /// The automaton as Graphviz DOT: one node per diagnoser state, labelled with
+    /// its fault labels (and observed state), one edge per trigger with the clock
+    /// intervals it is taken in.
+    pub fn to_dot(&self, engine: &Engine, unit: crate::TimeUnit) -> String {
+        let part = &engine.part;
+        let mut states: Vec<u32> = self.graph.node_weights().map(|n| n.state).collect();
+        states.sort_unstable();
+        states.dedup();
+        let id = |s: u32| states.binary_search(&s).unwrap_or(0);
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "digraph \"{}\" {{",
+            escape(&format!("diagnoser {}", part.name))
+        );
+        let _ = writeln!(
+            out,
+            "  rankdir=LR; node [shape=box, fontname=\"Helvetica\"];"
+        );
+        for &s in &states {
+            let st = engine.state(s);
+            let labels = engine.labels(st.labels);
+            let names: Vec<&str> = if labels.normal {
+                vec!["N"]
+            } else if labels.modes.is_empty() {
+                vec![super::run::UNKNOWN_LABEL]
+            } else {
+                labels
+                    .modes
+                    .iter()
+                    .map(|&m| part.modes[m as usize].label.as_str())
+                    .collect()
+            };
+            let colour = if labels.normal {
+                "white"
+            } else if names.len() == 1 {
+                "salmon"
+            } else {
+                "khaki"
+            };
+            let _ = writeln!(
+                out,
+                "  d{} [label=\"{{{}}}\\n{}\", style=filled, fillcolor={colour}];",
+                id(s),
+                escape(&names.join(", ")),
+                escape(&part.describe(st.obs))
+            );
+        }
+        // Merge edges between the same states on the same trigger, with the
+        // command-clock intervals they are taken in.
+        let mut edges: HashMap<(u32, u32, String), Vec<Span>> = HashMap::new();
+        for e in self.graph.edge_indices() {
+            let Some((a, b)) = self.graph.edge_endpoints(e) else {
+                continue;
+            };
+            let (na, nb) = (&self.graph[a], &self.graph[b]);
+            if na.state == nb.state && matches!(self.graph[e], Trigger::Time { .. }) {
+                continue;
+            }
+            match &self.graph[e] {
+                Trigger::Scan(ch) => {
+                    let label = part.edges(engine.state(na.state).obs, *ch);
+                    let w = edges.entry((na.state, nb.state, label)).or_default();
+                    if let Some(v) = na.readings.first().copied().flatten() {
+                        let th = engine.state(na.state).thresholds.first();
+                        let next = th.and_then(|th| th.iter().copied().find(|&x| x > v));
+                        w.push((v, next));
+                    }
+                }
+                Trigger::Time { clock, at } => {
+                    let label = format!("{} > {}", part.clock_name(*clock), unit.format(at - 1));
+                    edges.entry((na.state, nb.state, label)).or_default();
+                }
+            }
+        }
+        let mut keys: Vec<_> = edges.into_iter().collect();
+        keys.sort();
+        for ((a, b, label), mut spans) in keys {
+            spans.sort_unstable();
+            // Adjacent intervals merge.
+            let mut merged: Vec<Span> = Vec::new();
+            for (lo, hi) in spans {
+                match merged.last_mut() {
+                    Some(last) if last.1.is_some_and(|h| h >= lo) => {
+                        last.1 = match (last.1, hi) {
+                            (Some(x), Some(y)) => Some(x.max(y)),
+                            _ => None,
+                        };
+                    }
+                    Some(last) if last.1.is_none() => {}
+                    _ => merged.push((lo, hi)),
+                }
+            }
+            let when: Vec<String> = merged
+                .iter()
+                .map(|(lo, hi)| match hi {
+                    Some(h) => format!("[{}, {}]", unit.format(*lo), unit.format(h - 1)),
+                    None => format!("[{}, ∞[", unit.format(*lo)),
+                })
+                .collect();
+            let text = if when.is_empty() {
+                label
+            } else {
+                format!("{label} {}", when.join(" "))
+            };
+            let _ = writeln!(
+                out,
+                "  d{} -> d{} [label=\"{}\"];",
+                id(a),
+                id(b),
+                escape(&text)
+            );
+        }
+        out.push_str("}\n");
+        out
+    }
+}
+
+/// A clock interval `[from, to[` (`to`: `None` for unbounded).
+type Span = (Time, Option<Time>);
+
+fn escape(s: &str) -> String {
+    s.replace('\\', "\\\\").replace('"', "\\\"")
+}

@@ -1,0 +1,209 @@
+//! `gardefou check`: diagnosability of every fault, and the size of each part's
+//! compiled diagnoser against the centralised one; or event-diagnosability of a
+//! libFAUDES generator.
+
+use std::fs;
+use std::io::Write;
+use std::path::PathBuf;
+
+use clap::Args;
+use diagnoser::diagnosis::compile::Compiled;
+use diagnoser::diagnosis::diagnosability::{FaultDiagnosability, check};
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
+use diagnoser::faudes;
+use diagnoser::model::Model;
+use diagnoser::{Plant, Time, time};
+
+use crate::Failure;
+
+/// Arguments of `gardefou check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    /// Plant file: parts, faults and partitions.
+    #[arg(long, required_unless_present = "generator", requires = "model")]
+    plant: Option<PathBuf>,
+    /// Learned model (from `gardefou learn`).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Also write each part's compiled diagnoser as Graphviz DOT into this directory.
+    #[arg(long, value_name = "DIR")]
+    dot: Option<PathBuf>,
+    /// Print the verdicts as JSON (one object per part) instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Longest an unexpected sensor edge shows (as for `diagnose`).
+    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
+    glitch_max: Time,
+    /// Instead: a libFAUDES generator file (`.gen`) to check for event-diagnosability.
+    #[arg(long = "gen", value_name = "GEN", conflicts_with_all = ["plant", "model"], requires = "failures")]
+    generator: Option<PathBuf>,
+    /// The libFAUDES failure-type map that goes with `--gen`.
+    #[arg(long, value_name = "FILE")]
+    failures: Option<PathBuf>,
+}
+
+fn bad(e: impl std::fmt::Display) -> Failure {
+    Failure::BadInput(e.to_string())
+}
+
+fn io(e: std::io::Error) -> Failure {
+    Failure::Io(format!("cannot write the output: {e}"))
+}
+
+/// Runs `gardefou check`.
+pub fn run(args: CheckArgs) -> Result<(), Failure> {
+    if let (Some(gen_path), Some(map)) = (&args.generator, &args.failures) {
+        return faudes_check(gen_path, map, args.json);
+    }
+    let (Some(plant_path), Some(model_path)) = (&args.plant, &args.model) else {
+        return Err(bad(
+            "check needs --plant and --model (or --gen and --failures)",
+        ));
+    };
+    let plant = Plant::from_path(plant_path).map_err(bad)?;
+    let model = Model::from_path(model_path).map_err(bad)?;
+    let diagnoser = PlantDiagnoser::new(
+        &plant,
+        &model,
+        &DiagnoserOptions {
+            glitch_max: args.glitch_max,
+        },
+    )
+    .map_err(|e| bad(format!("{}: {e}", model_path.display())))?;
+    if let Some(dir) = &args.dot {
+        fs::create_dir_all(dir)
+            .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
+    }
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    let mut product: f64 = 1.0;
+    let mut sum = 0usize;
+    for engine in diagnoser.engines() {
+        let mut engine = engine.clone();
+        let compiled = Compiled::explore(&mut engine, 2);
+        let size = compiled.size();
+        product *= size.states as f64;
+        sum += size.states;
+        let verdicts = check(&mut engine, &compiled, model.time_unit);
+        if let Some(dir) = &args.dot {
+            let path = dir.join(format!("{}.diagnoser.dot", engine.part.name));
+            fs::write(&path, compiled.to_dot(&engine, model.time_unit))
+                .map_err(|e| Failure::Io(format!("cannot write {}: {e}", path.display())))?;
+        }
+        if args.json {
+            let v = serde_json::json!({
+                "part": engine.part.name,
+                "diagnoser": size,
+                "truncated": compiled.truncated,
+                "faults": verdicts,
+            });
+            writeln!(out, "{v}").map_err(io)?;
+            continue;
+        }
+        writeln!(
+            out,
+            "{}: diagnoser of {} states, {} transitions ({} signals, {} faults){}",
+            engine.part.name,
+            size.states,
+            size.transitions,
+            engine.part.names.len(),
+            engine.part.modes.len() - 1,
+            if compiled.truncated {
+                " [exploration truncated]"
+            } else {
+                ""
+            }
+        )
+        .map_err(io)?;
+        for v in &verdicts {
+            write_verdict(&mut out, v).map_err(io)?;
+        }
+    }
+    if args.json {
+        let v = serde_json::json!({
+            "plant": plant.name,
+            "decentralised_states": sum,
+            "centralised_states": product,
+        });
+        writeln!(out, "{v}").map_err(io)?;
+    } else {
+        writeln!(
+            out,
+            "plant {}: the local diagnosers have {sum} states in all; their product, a centralised diagnoser, would have {product:.0}",
+            plant.name
+        )
+        .map_err(io)?;
+    }
+    Ok(())
+}
+
+fn write_verdict(out: &mut impl Write, v: &FaultDiagnosability) -> std::io::Result<()> {
+    let state = match (v.detectable, v.isolable) {
+        (true, true) => format!(
+            "diagnosable: detected and isolated within {} observed scan(s) of showing",
+            v.bound_scans.unwrap_or(0)
+        ),
+        (true, false) => format!(
+            "detectable, not isolable from {}",
+            v.confused_with.join(", ")
+        ),
+        (false, _) => {
+            let others: Vec<&str> = v
+                .confused_with
+                .iter()
+                .filter(|l| *l != "N")
+                .map(String::as_str)
+                .collect();
+            if others.is_empty() {
+                "not detectable".to_string()
+            } else {
+                format!("not detectable, not isolable from {}", others.join(", "))
+            }
+        }
+    };
+    writeln!(out, "  {} {}: {state}", v.label, v.template)?;
+    if let Some(c) = &v.counterexample {
+        let other = if c.other == "N" {
+            "a normal run".to_string()
+        } else {
+            format!("a run with {}", c.other)
+        };
+        writeln!(
+            out,
+            "    counterexample: these observations repeat for ever and fit both {other} and a run with {}:",
+            v.label
+        )?;
+        writeln!(out, "      observed:      {}", c.observed.join(" → "))?;
+        writeln!(
+            out,
+            "      {:<14} {}",
+            format!("{}:", c.other),
+            c.other_run.join(" → ")
+        )?;
+        writeln!(
+            out,
+            "      {:<14} {}",
+            format!("{}:", v.label),
+            c.faulty.join(" → ")
+        )?;
+    }
+    Ok(())
+}
+
+fn faudes_check(gen_path: &PathBuf, map: &PathBuf, json: bool) -> Result<(), Failure> {
+    let read = |p: &PathBuf| {
+        fs::read_to_string(p).map_err(|e| bad(format!("{}: cannot read: {e}", p.display())))
+    };
+    let g = faudes::parse_generator(&read(gen_path)?, gen_path).map_err(bad)?;
+    let f = faudes::parse_failure_types(&read(map)?, map).map_err(bad)?;
+    let result = faudes::event_diagnosability(&g, &f);
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    if json {
+        let v = serde_json::to_string(&result).map_err(|e| Failure::Io(e.to_string()))?;
+        writeln!(out, "{v}").map_err(io)?;
+    } else {
+        write!(out, "{}", faudes::render(&result)).map_err(io)?;
+    }
+    Ok(())
+}

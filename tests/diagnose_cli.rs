@@ -1,0 +1,325 @@
+//! End-to-end tests of `gardefou diagnose` and `gardefou check`: the real binary
+//! on the shipped F1–F12 turntable runs, checked against a fixture file of the
+//! expected verdict lines (`UPDATE_EXPECT=1` rewrites it) and against each
+//! run's ground truth.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use serde_json::Value;
+
+fn gardefou(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(args)
+        .output()
+        .expect("runs the binary")
+}
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn data(rel: &str) -> String {
+    root().join("datasets/data").join(rel).display().to_string()
+}
+
+fn plant() -> String {
+    data("sorting/normal/plant.toml")
+}
+
+/// The model learned from the shipped normal run, once for all tests.
+fn model() -> &'static str {
+    static MODEL: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
+    &MODEL
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().expect("temp dir");
+            let path = dir.path().join("model.json").display().to_string();
+            let o = gardefou(&[
+                "learn",
+                "--plant",
+                &plant(),
+                "-q",
+                "-o",
+                &path,
+                &data("sorting/normal/events.csv"),
+            ]);
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            (dir, path)
+        })
+        .1
+}
+
+fn diagnose(log: &str, extra: &[&str]) -> Output {
+    let plant = plant();
+    let mut args = vec!["diagnose", "--plant", &plant, "--model", model()];
+    args.extend_from_slice(extra);
+    args.push(log);
+    gardefou(&args)
+}
+
+fn lines(o: &Output) -> Vec<Value> {
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect()
+}
+
+fn labels(v: &Value) -> Vec<&str> {
+    v["labels"]
+        .as_array()
+        .expect("labels")
+        .iter()
+        .filter_map(Value::as_str)
+        .collect()
+}
+
+const FAULTS: [&str; 12] = [
+    "F1", "F2", "F3", "F4", "F5", "F6", "F7", "F8", "F9", "F10", "F11", "F12",
+];
+
+#[test]
+fn shipped_fault_runs_give_the_expected_verdicts() {
+    let mut text = String::new();
+    for f in FAULTS {
+        let log = data(&format!("sorting/{f}/events.csv"));
+        let o = diagnose(&log, &[]);
+        let truth: Value = serde_json::from_str(
+            &fs::read_to_string(data(&format!("sorting/{f}/truth.json"))).expect("truth"),
+        )
+        .expect("truth.json");
+        let onset = truth["faults"][0]["onset"].as_f64().expect("onset");
+        for v in lines(&o) {
+            assert!(
+                v["t"].as_f64().expect("t") >= onset,
+                "{f}: verdict before the onset: {v}"
+            );
+            if v["verdict"] != "normal" {
+                assert!(labels(&v).contains(&f), "{f}: true label excluded: {v}");
+            }
+            text.push_str(&format!("{f} {v}\n"));
+        }
+    }
+    let fixture = root().join("tests/fixtures/diagnosis/sorting-faults.jsonl");
+    if std::env::var_os("UPDATE_EXPECT").is_some() {
+        fs::create_dir_all(fixture.parent().expect("parent")).expect("fixture dir");
+        fs::write(&fixture, &text).expect("fixture written");
+    }
+    let expected = fs::read_to_string(&fixture).expect("fixture (UPDATE_EXPECT=1 writes it)");
+    assert_eq!(text, expected, "verdicts differ from {}", fixture.display());
+}
+
+/// Seed 002's story of F2 (C4 stuck at 1): ambiguous with F2 and F5 once no
+/// FE(C4) came within its window after RE(A4), certain F2 when RE(C5) comes.
+#[test]
+fn f2_turns_ambiguous_then_certain() {
+    let all = lines(&diagnose(&data("sorting/F2/events.csv"), &[]));
+    let turntable: Vec<&Value> = all.iter().filter(|v| v["part"] == "turntable").collect();
+    let first = turntable.first().expect("a verdict");
+    assert_eq!(first["verdict"], "ambiguous");
+    let l = labels(first);
+    assert!(l.contains(&"F2") && l.contains(&"F5"), "{first}");
+    assert!(
+        first["reason"]
+            .as_str()
+            .is_some_and(|r| r.starts_with("no FE(C4) within")),
+        "{first}"
+    );
+    // The shipped run's RE(A4) after the onset is at 602750 ms; FE(C4)'s
+    // learned window closes 140 ms later.
+    assert_eq!(first["t"].as_f64(), Some(602_890.0));
+    let last = turntable.last().expect("a verdict");
+    assert_eq!(last["verdict"], "certain");
+    assert_eq!(labels(last), ["F2"]);
+    assert_eq!(last["flags"], serde_json::json!(["def_C4"]));
+    assert!(
+        last["reason"]
+            .as_str()
+            .is_some_and(|r| r.starts_with("RE(C5)"))
+    );
+    // The plant view agrees.
+    let plant = all
+        .iter()
+        .rev()
+        .find(|v| v["part"] == "plant")
+        .expect("plant view");
+    assert_eq!(labels(plant), ["F2"]);
+}
+
+#[test]
+fn every_log_form_gives_the_same_verdicts() {
+    let events = diagnose(&data("sorting/F2/events.csv"), &[]);
+    let intervals = diagnose(&data("sorting/F2/intervals.csv"), &[]);
+    assert_eq!(lines(&events), lines(&intervals));
+    // A real Parquet file, written by the simulator.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("run");
+    let o = gardefou(&[
+        "simulate",
+        "--duration",
+        "20min",
+        "--fault",
+        "F6@5min",
+        "--parquet",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let parquet: Vec<PathBuf> = fs::read_dir(&out)
+        .expect("run dir")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "parquet"))
+        .collect();
+    assert_eq!(parquet.len(), 1, "{parquet:?}");
+    let from_parquet = lines(&diagnose(parquet[0].to_str().expect("utf-8"), &[]));
+    let from_csv = lines(&diagnose(
+        out.join("events.csv").to_str().expect("utf-8"),
+        &[],
+    ));
+    assert_eq!(from_parquet, from_csv);
+    assert!(
+        from_csv
+            .iter()
+            .any(|v| v["part"] == "turntable" && labels(v) == ["F6"]),
+        "{from_csv:?}"
+    );
+}
+
+#[test]
+fn summary_is_a_table_per_part() {
+    let o = diagnose(&data("sorting/F5/events.csv"), &["--summary"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let row = text
+        .lines()
+        .find(|l| l.starts_with("turntable"))
+        .expect("a turntable row");
+    let cells: Vec<&str> = row.split_whitespace().collect();
+    assert_eq!(cells, ["turntable", "certain", "F5", "602890", "def_P"]);
+    assert!(
+        text.lines()
+            .any(|l| l.starts_with("rollers ") && l.contains("normal"))
+    );
+}
+
+#[test]
+fn check_reports_diagnosability_sizes_and_renders_with_graphviz() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let dot = dir.path().join("dot");
+    let plant = plant();
+    let o = gardefou(&[
+        "check",
+        "--plant",
+        &plant,
+        "--model",
+        model(),
+        "--dot",
+        dot.to_str().expect("utf-8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let verdict = |label: &str| {
+        text.lines()
+            .find(|l| l.trim_start().starts_with(&format!("{label} ")))
+            .unwrap_or_else(|| panic!("no line for {label} in {text}"))
+            .to_string()
+    };
+    for f in ["F1", "F2", "F3", "F4", "F5", "F6", "F11", "F12"] {
+        assert!(verdict(f).contains(": diagnosable"), "{}", verdict(f));
+    }
+    // An unexpected edge can hide inside the window of a normal one.
+    assert!(
+        verdict("F7").contains("not detectable"),
+        "{}",
+        verdict("F7")
+    );
+    assert!(text.contains("counterexample"), "{text}");
+    assert!(text.contains("centralised diagnoser"), "{text}");
+    let svg = Command::new("dot")
+        .arg("-Tsvg")
+        .arg(dot.join("turntable.diagnoser.dot"))
+        .output()
+        .expect("Graphviz dot runs");
+    assert!(
+        svg.status.success(),
+        "{}",
+        String::from_utf8_lossy(&svg.stderr)
+    );
+    assert!(String::from_utf8_lossy(&svg.stdout).contains("F2"));
+}
+
+#[test]
+fn check_reads_libfaudes_generators() {
+    let fx = root().join("diagnoser/tests/fixtures/faudes");
+    let o = gardefou(&[
+        "check",
+        "--gen",
+        fx.join("diag_system_4.gen").to_str().expect("utf-8"),
+        "--failures",
+        fx.join("diag_failure_typemap_4.txt")
+            .to_str()
+            .expect("utf-8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("F1: not diagnosable"), "{text}");
+}
+
+#[test]
+fn bad_models_are_one_line_errors_with_exit_code_2() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let broken = dir.path().join("model.json");
+    fs::write(&broken, "{\"version\": 1,\n \"plant\": 3}").expect("write");
+    let plant = plant();
+    let log = data("sorting/F2/events.csv");
+    let o = gardefou(&[
+        "diagnose",
+        "--plant",
+        &plant,
+        "--model",
+        broken.to_str().expect("utf-8"),
+        &log,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("model.json:2:"), "{err}");
+
+    fs::write(&broken, "{\"version\": 99}").expect("write");
+    let o = gardefou(&[
+        "diagnose",
+        "--plant",
+        &plant,
+        "--model",
+        broken.to_str().expect("utf-8"),
+        &log,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("version 99"));
+
+    // A model of another plant.
+    let cylinders = dir.path().join("cyl.json");
+    let o = gardefou(&[
+        "learn",
+        "-q",
+        "--plant",
+        &data("cylinders/normal/plant.toml"),
+        "-o",
+        cylinders.to_str().expect("utf-8"),
+        &data("cylinders/normal/events.csv"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = gardefou(&[
+        "diagnose",
+        "--plant",
+        &plant,
+        "--model",
+        cylinders.to_str().expect("utf-8"),
+        &log,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("learned for plant"), "{err}");
+}
