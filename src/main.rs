@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod check;
+mod demo;
 mod diagnose;
 mod learn;
 mod simulate;
@@ -23,6 +24,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// The whole chain on the embedded sorting plant: learn, inject each fault, diagnose.
+    Demo(demo::DemoArgs),
     /// Learn one timed model per plant part from logs of normal operation.
     Learn(learn::LearnArgs),
     /// Replay logs through every part's diagnoser: verdict changes as JSON lines.
@@ -75,6 +78,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(args),
         Command::Diagnose(args) => diagnose::run(args),
         Command::Check(args) => check::run(args),
+        Command::Demo(args) => demo::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
