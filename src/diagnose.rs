@@ -36,6 +36,10 @@ pub struct DiagnoseArgs {
     /// value again (longer, it is a stuck sensor).
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
+    /// Time at which the logs end, when later than their last event (in the
+    /// logs' time unit): deadlines up to it still count. Default: the last event.
+    #[arg(long, value_name = "TIME")]
+    end: Option<f64>,
     /// Print, per part, a table of the final verdict, first detection time and
     /// flags, instead of the verdict changes.
     #[arg(long)]
@@ -124,6 +128,11 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
             }
             read += batch.len() as u64;
             bar.set_position(read);
+        }
+        if let Some(end) = args.end {
+            let unit = args.time_unit.unwrap_or(plant.time_unit);
+            let end = (end * unit.nanos() as f64).round() as diagnoser::Time;
+            last = last.max(end);
         }
         let mut summary = diagnoser.finish(last, &mut emit);
         let view = diagnoser.plant_view(last);

@@ -592,7 +592,7 @@ impl PartDiagnoser {
                         && self.model_state(h.phys).is_some_and(|s| {
                             self.moves[s]
                                 .iter()
-                                .any(|mv| mv.changed >> to & 1 == 1 && !mv.command)
+                                .any(|mv| (mv.changed & !self.act_mask) >> to & 1 == 1)
                         });
                     in_transit.then_some(h.phys)
                 }
@@ -625,10 +625,20 @@ impl PartDiagnoser {
                 let dec = self.decoupled(h);
                 if let Some(s) = self.model_state(h.phys) {
                     for m in &self.moves[s] {
-                        if m.command || !self.may_have_happened(h, m, readings) {
+                        if !self.may_have_happened(h, m, readings) {
                             continue;
                         }
-                        if m.changed & !dec == 0 {
+                        if m.command {
+                            // The control's reaction to a sensor edge it cannot
+                            // see does not come; the edge itself still happens.
+                            let sensed = m.changed & !self.act_mask;
+                            if sensed != 0 && sensed & !dec == 0 {
+                                extra.push(Hypothesis {
+                                    phys: h.phys ^ sensed,
+                                    ..h
+                                });
+                            }
+                        } else if m.changed & !dec == 0 {
                             extra.push(Hypothesis {
                                 phys: h.phys ^ m.changed,
                                 ..h
@@ -873,9 +883,10 @@ impl PartDiagnoser {
                 let c = m.clock as usize;
                 all[c].push(m.lo);
                 all[c].push(m.hi + 1);
-                let hidden = m.changed & !dec == 0
-                    || (glitches && h.mode == 0 && m.changed.count_ones() == 1);
-                if !m.command && hidden {
+                let sensed = m.changed & !self.act_mask;
+                let hidden =
+                    sensed & !dec == 0 || (glitches && h.mode == 0 && m.changed.count_ones() == 1);
+                if sensed != 0 && hidden {
                     timers[c].push(m.lo);
                 }
             }

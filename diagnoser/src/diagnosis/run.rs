@@ -110,6 +110,8 @@ pub struct PlantDiagnoser {
     routes: Vec<Vec<(u16, u8)>>,
     pending: Vec<(u16, u32)>,
     scan: Option<Time>,
+    /// Time of the last scan or of the start: deadlines before it have fired.
+    now: Time,
     earliest: Option<Time>,
     unit: TimeUnit,
     changes: Vec<u64>,
@@ -167,6 +169,7 @@ impl PlantDiagnoser {
             routes,
             pending: Vec::new(),
             scan: None,
+            now: Time::MIN,
             earliest: None,
             unit: model.time_unit,
             before: Vec::new(),
@@ -179,7 +182,8 @@ impl PlantDiagnoser {
         &self.engines
     }
 
-    /// Starts a replay at `t0` with every signal's initial value.
+    /// Starts a replay at `t0` (the time of the first record) with every
+    /// signal's initial value. Clocks are unknown until their first edge.
     pub fn start(&mut self, t0: Time, initial: &[bool]) {
         self.runs.clear();
         self.pending.clear();
@@ -205,7 +209,7 @@ impl PlantDiagnoser {
                 detected: None,
             });
         }
-        let _ = t0;
+        self.now = t0;
     }
 
     /// Feeds one event. Verdict changes it completes go to `out`.
@@ -242,7 +246,16 @@ impl PlantDiagnoser {
         if let Some(s) = self.scan.take() {
             self.flush(s, out);
         }
-        self.fire_timers(t, out);
+        if t > self.now {
+            self.fire_timers(t, out);
+            self.now = t;
+        }
+    }
+
+    /// The time the diagnosers have reached: the last scan, or the last
+    /// [`Self::advance_to`].
+    pub fn now(&self) -> Time {
+        self.now
     }
 
     /// Ends a replay at `end` (the time of the log's last record) and summarises
@@ -315,6 +328,7 @@ impl PlantDiagnoser {
         if self.earliest.is_some_and(|x| x <= t) {
             self.fire_timers(t, out);
         }
+        self.now = self.now.max(t);
         let mut pending = std::mem::take(&mut self.pending);
         for &(part, changed) in &pending {
             if changed == 0 {

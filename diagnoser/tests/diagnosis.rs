@@ -1,0 +1,174 @@
+//! The diagnosers on the shipped turntable runs, with a model learned from the
+//! shipped normal run (`fixtures/diagnosis/sorting-model.json`, written by
+//! `gardefou learn --plant datasets/plants/sorting.toml
+//! datasets/data/sorting/normal/events.csv`), and the coordinator's rules on
+//! hand-made verdicts.
+
+use std::path::{Path, PathBuf};
+
+use diagnoser::diagnosis::compile::Compiled;
+use diagnoser::diagnosis::diagnosability::check;
+use diagnoser::diagnosis::fusion::Coordinator;
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
+use diagnoser::log::read_events;
+use diagnoser::model::Model;
+use diagnoser::{Plant, TimeUnit};
+
+fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
+fn setup() -> (Plant, Model) {
+    let plant = Plant::from_path(&repo("datasets/plants/sorting.toml")).expect("plant");
+    let model = Model::from_path(&repo(
+        "diagnoser/tests/fixtures/diagnosis/sorting-model.json",
+    ))
+    .expect("model");
+    (plant, model)
+}
+
+fn replay(plant: &Plant, model: &Model, run: &str) -> Vec<Verdict> {
+    let log = read_events(
+        &repo(&format!("datasets/data/sorting/{run}/events.csv")),
+        &plant.signals,
+        TimeUnit::Ms,
+    )
+    .expect("shipped log");
+    let mut d = PlantDiagnoser::new(plant, model, &DiagnoserOptions::default()).expect("diagnoser");
+    let mut out = Vec::new();
+    d.start(log.start, &log.initial);
+    for &e in &log.events {
+        d.push(e, &mut |v| out.push(v));
+    }
+    let end = log.events.last().map_or(log.start, |e| e.t);
+    d.finish(end, &mut |v| out.push(v));
+    out
+}
+
+#[test]
+fn shipped_runs_keep_the_true_label_and_never_lower_a_flag() {
+    let (plant, model) = setup();
+    assert!(replay(&plant, &model, "normal").is_empty());
+    for i in 1..=12 {
+        let label = format!("F{i}");
+        let mut flags: Vec<String> = Vec::new();
+        for v in replay(&plant, &model, &label) {
+            if v.verdict != VerdictKind::Normal {
+                assert!(v.labels.contains(&label), "{label}: {v:?}");
+            }
+            if v.part == "turntable" {
+                assert!(
+                    flags.iter().all(|f| v.flags.contains(f)),
+                    "{label}: flag lowered: {v:?}"
+                );
+                flags = v.flags.clone();
+            }
+        }
+    }
+}
+
+#[test]
+fn compiled_turntable_diagnoser_and_its_diagnosability() {
+    let (plant, model) = setup();
+    let d = PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
+    let mut engine = d
+        .engines()
+        .iter()
+        .find(|e| e.part.name == "turntable")
+        .expect("turntable")
+        .clone();
+    let compiled = Compiled::explore(&mut engine, 2);
+    assert!(!compiled.truncated);
+    let size = compiled.size();
+    assert!(
+        size.states > 6 && size.transitions > size.states,
+        "{size:?}"
+    );
+    let dot = compiled.to_dot(&engine, TimeUnit::Ms);
+    assert!(dot.contains("{F2}") && dot.contains("{N}"), "{dot}");
+    let verdicts = check(&mut engine, &compiled, TimeUnit::Ms);
+    let of = |l: &str| verdicts.iter().find(|v| v.label == l).expect("verdict");
+    let f2 = of("F2");
+    assert!(
+        f2.detectable && f2.isolable && f2.counterexample.is_none(),
+        "{f2:?}"
+    );
+    let f7 = of("F7");
+    assert!(!f7.detectable, "{f7:?}");
+    let c = f7.counterexample.as_ref().expect("a counterexample");
+    assert!(!c.observed.is_empty());
+    assert_eq!(c.faulty.len(), c.observed.len());
+    assert_eq!(c.other_run.len(), c.observed.len());
+}
+
+fn verdict(part: &str, labels: &[&str]) -> Verdict {
+    let kind = match labels {
+        ["N"] => VerdictKind::Normal,
+        [_] => VerdictKind::Certain,
+        _ => VerdictKind::Ambiguous,
+    };
+    Verdict {
+        t: 0,
+        part: part.to_string(),
+        verdict: kind,
+        labels: labels.iter().map(|l| l.to_string()).collect(),
+        flags: Vec::new(),
+        suspects: Vec::new(),
+        reason: String::new(),
+    }
+}
+
+fn coordinator() -> Coordinator {
+    let (plant, _) = setup();
+    // Two parts reading C4: the turntable models F2 and F5; a neighbour models
+    // F2 (its stuck C4) and a fault of its own, X.
+    Coordinator::new(
+        &plant,
+        vec![
+            ("turntable".into(), vec!["F2".into(), "F5".into()]),
+            ("neighbour".into(), vec!["F2".into(), "X".into()]),
+            ("rollers".into(), vec![]),
+        ],
+    )
+}
+
+#[test]
+fn a_neighbour_resolves_an_ambiguity() {
+    let mut c = coordinator();
+    let v = c
+        .update(0, &verdict("turntable", &["F2", "F5"]))
+        .expect("a view");
+    assert_eq!(v.labels, ["F2", "F5"]);
+    let v = c
+        .update(1, &verdict("neighbour", &["F2"]))
+        .expect("a new view");
+    assert_eq!(v.labels, ["F2"]);
+    assert_eq!(v.verdict, VerdictKind::Certain);
+    assert_eq!(v.flags, ["def_C4"]);
+}
+
+#[test]
+fn a_part_that_models_a_fault_and_left_normal_without_it_excludes_it() {
+    let mut c = coordinator();
+    c.update(0, &verdict("turntable", &["F2", "F5"]));
+    let v = c.update(1, &verdict("neighbour", &["X"])).expect("a view");
+    // F2 is excluded by the neighbour; no label is common: two faults.
+    assert_eq!(v.labels, ["F5", "X"]);
+    assert_eq!(v.verdict, VerdictKind::Ambiguous);
+}
+
+#[test]
+fn unexplained_deviations_are_consequences_of_a_modelled_fault() {
+    let mut c = coordinator();
+    let v = c
+        .update(2, &verdict("rollers", &["unknown"]))
+        .expect("a view");
+    assert_eq!(v.labels, ["unknown"]);
+    let v = c
+        .update(0, &verdict("turntable", &["F2"]))
+        .expect("a new view");
+    assert_eq!(v.labels, ["F2"]);
+    assert!(v.reason.contains("rollers"), "{}", v.reason);
+    // Nothing changes: no new line.
+    assert!(c.update(0, &verdict("turntable", &["F2"])).is_none());
+}
