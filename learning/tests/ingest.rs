@@ -26,6 +26,7 @@ fn options(batch_rows: usize) -> IngestOptions {
         batch_rows,
         // These tests exercise the polars path whatever the file size.
         memory_budget: u64::MAX,
+        parquet_slice_rows: 1 << 22,
     }
 }
 
@@ -310,6 +311,20 @@ fn every_form_reads_back_the_same_run() {
             path.display(),
             got.batches
         );
+        if path.extension().is_some_and(|x| x == "parquet") {
+            // Read in many slices (one polars query each): the same stream.
+            let sliced = IngestOptions {
+                parquet_slice_rows: 97,
+                ..options(BATCH)
+            };
+            let again = read(path, &plant, &sliced).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(
+                (again.start, &again.initial, &again.events),
+                (got.start, &got.initial, &got.events),
+                "{} in slices",
+                path.display()
+            );
+        }
         let text_times = *path == rfc_csv || *path == rfc_parquet;
         let time = if text_times { TimeFormat::Rfc3339 } else { ms };
         assert_eq!(got.time, time, "{}", path.display());

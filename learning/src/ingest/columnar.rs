@@ -10,9 +10,11 @@
 //! run ahead of the consumer, so memory is bounded by a few batches whatever the
 //! size of the log (measured: about 40 MB of heap for batches of 10 000 rows,
 //! 260 MB for the default 2^20, on 10 and 20 million events alike). polars
-//! memory-maps local uncompressed files: the pages it has read also count in
-//! the process's resident size, but they are the page cache's, clean, and the
-//! kernel reclaims them at will. (polars 0.55 has no batched CSV or Parquet
+//! memory-maps local files while a query runs: the pages it has read also count
+//! in the process's resident size (clean page cache, which the kernel reclaims
+//! at will). So that they stay bounded too, a Parquet log is read by one query
+//! per slice of `IngestOptions::parquet_slice_rows` rows, each unmapping the
+//! file when done; CSV logs past the memory budget go to the buffered reader. (polars 0.55 has no batched CSV or Parquet
 //! reader any more, and its `collect_batches` needs the `async` feature; this is
 //! the same mechanism on a plain thread.) Dropping the stream closes the channel,
 //! which makes the callback ask the engine to stop.
@@ -54,9 +56,9 @@ use diagnoser::{
     Event, Located, Location, Plant, SignalId, SignalTable, Time, TimeFormat, TimeUnit,
 };
 use polars::prelude::{
-    BooleanChunked, DataFrame, DataType, Engine, Field, Float64Chunked, Int64Chunked,
-    LazyCsvReader, LazyFileListReader, LazyFrame, PlRefPath, PlanCallback, PolarsResult,
-    ScanArgsParquet, Schema, SchemaRef, StringChunked, col,
+    BooleanChunked, DataFrame, DataType, Engine, Field, Float64Chunked, IdxSize, Int64Chunked,
+    LazyCsvReader, LazyFileListReader, LazyFrame, ParquetReader, PlRefPath, PlanCallback,
+    PolarsResult, ScanArgsParquet, Schema, SchemaRef, SerReader, StringChunked, col,
 };
 
 use super::{IngestOptions, LogFormat, LogStream};
@@ -123,7 +125,11 @@ pub(super) fn open(
         Shape::Intervals => {
             // First pass: check every row, find the initial values and the order.
             let mut check = IntervalCheck::new(&ctx, layout.clone(), clock);
-            let mut frames = Frames::start(&ctx, scan(&ctx, &layout)?, batch)?;
+            let mut frames = Frames::start(
+                &ctx,
+                scans(&ctx, &layout, options.parquet_slice_rows)?,
+                batch,
+            )?;
             let mut none = Vec::new();
             loop {
                 match frames.next() {
@@ -140,7 +146,11 @@ pub(super) fn open(
             Box::new(IntervalEvents::new(&ctx, layout.clone(), check)?)
         }
     };
-    let frames = Frames::start(&ctx, scan(&ctx, &layout)?, batch)?;
+    let frames = Frames::start(
+        &ctx,
+        scans(&ctx, &layout, options.parquet_slice_rows)?,
+        batch,
+    )?;
     let mut reader = Reader {
         frames,
         form,
@@ -707,6 +717,29 @@ pub(super) fn parquet_schema(path: &Path) -> Result<SchemaRef, Located> {
         .map_err(failure)
 }
 
+/// The queries that read a layout's columns, in order: one for CSV, one per
+/// slice of `slice_rows` rows for Parquet. polars maps the whole file while a
+/// query runs; a query per slice maps it anew and unmaps it when done, so the
+/// file's resident pages stay bounded by a slice's, whatever its size.
+fn scans(ctx: &Ctx, layout: &Layout, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
+    let slice_rows = slice_rows.max(1);
+    let lf = scan(ctx, layout)?;
+    if ctx.container != Container::Parquet {
+        return Ok(vec![lf]);
+    }
+    let failure = |e: polars::prelude::PolarsError| ctx.polars_failure(&e.to_string());
+    let file = File::open(&ctx.path)
+        .map_err(|e| file_error(&ctx.path, format!("cannot open the log: {e}")))?;
+    let rows = ParquetReader::new(file).num_rows().map_err(failure)?;
+    if rows <= slice_rows {
+        return Ok(vec![lf]);
+    }
+    Ok((0..rows)
+        .step_by(slice_rows)
+        .map(|offset| lf.clone().slice(offset as i64, slice_rows as IdxSize))
+        .collect())
+}
+
 /// The lazy scan of a layout's columns.
 fn scan(ctx: &Ctx, layout: &Layout) -> Result<LazyFrame, Located> {
     let failure = |e: polars::prelude::PolarsError| ctx.polars_failure(&e.to_string());
@@ -755,7 +788,7 @@ struct Frames {
 }
 
 impl Frames {
-    fn start(ctx: &Ctx, lf: LazyFrame, rows: usize) -> Result<Frames, Located> {
+    fn start(ctx: &Ctx, queries: Vec<LazyFrame>, rows: usize) -> Result<Frames, Located> {
         // A rendezvous channel: the callback (on polars' blocking pool) waits
         // until the consumer takes the frame, so the engine never runs more than
         // a frame ahead of it, which bounds memory. Measured on 10 million
@@ -765,12 +798,22 @@ impl Frames {
             // Stop the query once nobody reads (the stream was dropped).
             Ok(sender.send(df).is_err())
         });
-        let lf = lf
-            .sink_batches(callback, true, NonZeroUsize::new(rows))
-            .map_err(|e| ctx.polars_failure(&e.to_string()))?;
+        let queries = queries
+            .into_iter()
+            .map(|lf| {
+                lf.sink_batches(callback.clone(), true, NonZeroUsize::new(rows))
+                    .map_err(|e| ctx.polars_failure(&e.to_string()))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         let worker = std::thread::Builder::new()
             .name("gardefou-ingest".to_string())
-            .spawn(move || lf.collect_with_engine(Engine::Streaming).map(|_| ()))
+            .spawn(move || {
+                // One after the other: the frames stay in order.
+                for lf in queries {
+                    lf.collect_with_engine(Engine::Streaming)?;
+                }
+                Ok(())
+            })
             .map_err(|e| file_error(&ctx.path, format!("cannot start reading the log: {e}")))?;
         Ok(Frames {
             receiver,

@@ -90,6 +90,10 @@ pub struct IngestOptions {
     /// reader instead of polars, which maps the whole file into memory: resident
     /// memory then stays flat however long the log.
     pub memory_budget: u64,
+    /// Parquet logs are read in slices of this many rows, one polars query
+    /// each: polars maps the whole file while a query runs, and a query per
+    /// slice keeps the file's resident pages to a slice's.
+    pub parquet_slice_rows: usize,
 }
 
 impl Default for IngestOptions {
@@ -99,6 +103,7 @@ impl Default for IngestOptions {
             time_unit: TimeUnit::Ms,
             batch_rows: 1 << 16,
             memory_budget: 512 << 20,
+            parquet_slice_rows: 1 << 22,
         }
     }
 }
