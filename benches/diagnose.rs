@@ -11,16 +11,15 @@
 //! Run with `cargo bench --bench diagnose`.
 
 use std::hint::black_box;
-use std::path::PathBuf;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use datasets::inject::{FaultSpec, Injection};
-use datasets::sim::{MemorySink, SimConfig, run};
-use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
+use datasets::sim::{MemorySink, SimConfig};
+use datasets::sorting::{plant, simulate_in_memory};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
 use diagnoser::model::Model;
-use diagnoser::{Event, MS, Plant, SECOND, Time, TimeFormat};
-use learning::ingest::{LogFormat, LogStream};
+use diagnoser::{MS, Plant, SECOND, Time, TimeFormat};
+use learning::ingest::LogStream;
 use learning::learn::{LearnOptions, Learner};
 
 /// Simulated hours of each replayed log.
@@ -41,25 +40,19 @@ fn simulate(plant: &Plant, duration: Time, seed: u64, faults: &[&str]) -> Memory
         seed,
         faults,
     };
-    let mut line = SortingLine::new(SortingConfig::default());
-    let mut ctl = SynthesisedControl::new(line.ids());
-    let mut sink = MemorySink::default();
-    run(&mut line, &mut ctl, &config, &mut sink, |_| {}).expect("in-memory simulation");
-    sink
+    simulate_in_memory(&config).expect("in-memory simulation").0
 }
 
 /// Learns the model from one simulated hour of normal operation, in memory.
 fn learn(plant: &Plant) -> Model {
     let log = simulate(plant, 3600 * SECOND, 3, &[]);
-    let batches: Vec<Vec<Event>> = log.events.chunks(1 << 16).map(<[Event]>::to_vec).collect();
-    let stream = LogStream {
-        path: PathBuf::from("simulated-1h-seed-3"),
-        format: LogFormat::EventsCsv,
-        time: TimeFormat::Numeric(plant.time_unit),
-        start: log.start,
-        initial: log.initial,
-        batches: Box::new(batches.into_iter().map(Ok)),
-    };
+    let stream = LogStream::from_events(
+        "simulated-1h-seed-3",
+        TimeFormat::Numeric(plant.time_unit),
+        log.start,
+        log.initial,
+        log.events,
+    );
     let mut learner = Learner::new(plant, LearnOptions::default()).expect("learnable plant");
     learner
         .learn_log(stream, |_| {})

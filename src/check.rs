@@ -47,7 +47,7 @@ fn bad(e: impl std::fmt::Display) -> Failure {
 }
 
 fn io(e: std::io::Error) -> Failure {
-    Failure::Io(format!("cannot write the output: {e}"))
+    Failure::output(e)
 }
 
 /// Runs `gardefou check`.

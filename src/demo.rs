@@ -8,11 +8,11 @@ use std::io::Write;
 
 use clap::Args;
 use datasets::inject::{FaultSpec, Injection};
-use datasets::sim::{MemorySink, SimConfig, run as simulate};
-use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
+use datasets::sim::{MemorySink, SimConfig};
+use datasets::sorting::{plant, simulate_in_memory};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, VerdictKind};
 use diagnoser::{MS, SECOND, TimeFormat, TimeUnit};
-use learning::ingest::{LogFormat, LogStream};
+use learning::ingest::LogStream;
 use learning::learn::{LearnOptions, Learner};
 use serde::Serialize;
 
@@ -46,12 +46,9 @@ fn sim(seed: u64, duration: i64, faults: Vec<Injection>) -> Result<MemorySink, F
         seed,
         faults,
     };
-    let mut line = SortingLine::new(SortingConfig::default());
-    let mut ctl = SynthesisedControl::new(line.ids());
-    let mut sink = MemorySink::default();
-    simulate(&mut line, &mut ctl, &config, &mut sink, |_| {})
-        .map_err(|e| Failure::Io(format!("simulation failed: {e}")))?;
-    Ok(sink)
+    simulate_in_memory(&config)
+        .map(|(sink, _)| sink)
+        .map_err(|e| Failure::Io(format!("simulation failed: {e}")))
 }
 
 /// Runs `gardefou demo`.
@@ -63,14 +60,13 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     let mut learner = Learner::new(&plant, LearnOptions::default()).map_err(internal)?;
     learner
         .learn_log(
-            LogStream {
-                path: "simulated normal hour".into(),
-                format: LogFormat::EventsCsv,
-                time: TimeFormat::Numeric(TimeUnit::Ms),
-                start: normal.start,
-                initial: normal.initial.clone(),
-                batches: Box::new(std::iter::once(Ok(normal.events))),
-            },
+            LogStream::from_events(
+                "simulated normal hour",
+                TimeFormat::Numeric(TimeUnit::Ms),
+                normal.start,
+                normal.initial.clone(),
+                normal.events,
+            ),
             |_| {},
         )
         .map_err(|e| internal(e.to_string()))?;
@@ -106,7 +102,7 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
 
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
-    let io = |e: std::io::Error| Failure::Io(format!("cannot write the output: {e}"));
+    let io = Failure::output;
     if args.json {
         let text = serde_json::to_string_pretty(&rows).map_err(|e| Failure::Io(e.to_string()))?;
         writeln!(out, "{text}").map_err(io)?;

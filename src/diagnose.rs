@@ -51,7 +51,7 @@ fn bad(e: impl std::fmt::Display) -> Failure {
 }
 
 fn io(e: std::io::Error) -> Failure {
-    Failure::Io(format!("cannot write the output: {e}"))
+    Failure::output(e)
 }
 
 /// One verdict as a JSON line of SPEC §3, its time in the log's representation.

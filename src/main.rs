@@ -43,6 +43,19 @@ pub enum Failure {
     BadInput(String),
     /// Something outside the user's input failed (disk full, ...).
     Io(String),
+    /// The reader of standard output went away (e.g. `| head`): not an error.
+    Closed,
+}
+
+impl Failure {
+    /// A failure to write the output.
+    pub fn output(e: std::io::Error) -> Failure {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            Failure::Closed
+        } else {
+            Failure::Io(format!("cannot write the output: {e}"))
+        }
+    }
 }
 
 fn main() -> ExitCode {
@@ -81,7 +94,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
         Err(Failure::BadInput(message)) => {
             eprintln!("gardefou: {message}");
             ExitCode::from(2)

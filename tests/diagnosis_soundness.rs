@@ -5,13 +5,13 @@
 use std::sync::OnceLock;
 
 use datasets::inject::{FaultSpec, Injection};
-use datasets::sim::{MemorySink, SimConfig, run};
-use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
+use datasets::sim::{MemorySink, SimConfig};
+use datasets::sorting::{plant, simulate_in_memory};
 use diagnoser::diagnosis::fusion::PLANT_VIEW;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
 use diagnoser::{MS, Plant, SECOND, TimeFormat, TimeUnit};
-use learning::ingest::{LogFormat, LogStream};
+use learning::ingest::LogStream;
 use learning::learn::{LearnOptions, Learner};
 use proptest::prelude::*;
 
@@ -38,23 +38,17 @@ fn simulate(seed: u64, duration: i64, faults: &[(&str, i64)]) -> MemorySink {
         seed,
         faults,
     };
-    let mut line = SortingLine::new(SortingConfig::default());
-    let mut ctl = SynthesisedControl::new(line.ids());
-    let mut sink = MemorySink::default();
-    run(&mut line, &mut ctl, &config, &mut sink, |_| {}).expect("simulation runs");
-    sink
+    simulate_in_memory(&config).expect("simulation runs").0
 }
 
 fn stream(sink: &MemorySink) -> LogStream {
-    let events = sink.events.clone();
-    LogStream {
-        path: "memory".into(),
-        format: LogFormat::EventsCsv,
-        time: TimeFormat::Numeric(TimeUnit::Ms),
-        start: sink.start,
-        initial: sink.initial.clone(),
-        batches: Box::new(std::iter::once(Ok(events))),
-    }
+    LogStream::from_events(
+        "memory",
+        TimeFormat::Numeric(TimeUnit::Ms),
+        sink.start,
+        sink.initial.clone(),
+        sink.events.clone(),
+    )
 }
 
 /// The model every test diagnoses with: learned from two simulated hours of

@@ -19,7 +19,7 @@ use diagnoser::{FaultTemplate, MS, Plant, SignalId, Time};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
-use crate::sim::{Controller, Damage, Physics};
+use crate::sim::{Controller, Damage, MemorySink, Physics, SimConfig, SimReport};
 
 /// The plant file of the sorting line, as shipped.
 pub const PLANT_TOML: &str = include_str!("../plants/sorting.toml");
@@ -796,4 +796,14 @@ impl Controller for SynthesisedControl {
         io[a[5]] = true;
         io[a[6]] = true;
     }
+}
+
+/// Runs the sorting line under its synthesised control (default geometry and
+/// timing), keeping the log in memory: for tests, benchmarks and the demo.
+pub fn simulate_in_memory(config: &SimConfig) -> std::io::Result<(MemorySink, SimReport)> {
+    let mut line = SortingLine::new(SortingConfig::default());
+    let mut ctl = SynthesisedControl::new(line.ids());
+    let mut sink = MemorySink::default();
+    let report = crate::sim::run(&mut line, &mut ctl, config, &mut sink, |_| {})?;
+    Ok((sink, report))
 }

@@ -127,6 +127,27 @@ pub struct LogStream {
     pub batches: Batches,
 }
 
+impl LogStream {
+    /// A log already in memory (e.g. a simulated run), as an events log named
+    /// `name`, its times written as `time`.
+    pub fn from_events(
+        name: &str,
+        time: TimeFormat,
+        start: Time,
+        initial: Vec<bool>,
+        events: Vec<Event>,
+    ) -> LogStream {
+        LogStream {
+            path: PathBuf::from(name),
+            format: LogFormat::EventsCsv,
+            time,
+            start,
+            initial,
+            batches: Box::new(std::iter::once(Ok(events))),
+        }
+    }
+}
+
 impl std::fmt::Debug for LogStream {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("LogStream")
