@@ -344,3 +344,53 @@ fn demo_diagnoses_every_turntable_fault() {
     assert_eq!(labels(f2), ["F2"]);
     assert_eq!(f2["flags"], serde_json::json!(["def_C4"]));
 }
+
+/// On the cylinder rig the control drops the order in the scan the end sensor
+/// rises: that reaction's timing is learned, so a cylinder blocked on its way
+/// is caught once its deadline passes (the log ends at 1 200 000 ms).
+#[test]
+fn a_cylinder_blocked_on_its_way_is_caught_by_the_reactions_deadline() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = dir.path().join("cylinders.json");
+    let plant = data("cylinders/normal/plant.toml");
+    let o = gardefou(&[
+        "learn",
+        "-q",
+        "--margin-rel",
+        "0.1",
+        "--plant",
+        &plant,
+        "-o",
+        model.to_str().expect("utf-8"),
+        &data("cylinders/normal/events.csv"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let run = |log: &str| {
+        lines(&gardefou(&[
+            "diagnose",
+            "--plant",
+            &plant,
+            "--model",
+            model.to_str().expect("utf-8"),
+            "--end",
+            "1200000",
+            &data(log),
+        ]))
+    };
+    assert!(run("cylinders/normal/events.csv").is_empty());
+    let blocked = run("cylinders/V1-blocked-between/events.csv");
+    let first = blocked
+        .iter()
+        .find(|v| v["part"] == "cylinder1")
+        .expect("cylinder 1 leaves normal");
+    assert!(
+        labels(first).contains(&"V1.blocked_between.Se0.Se1"),
+        "{first}"
+    );
+    assert!(
+        first["reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("RE(Se1)")),
+        "{first}"
+    );
+}

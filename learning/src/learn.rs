@@ -513,6 +513,10 @@ impl PartLearner {
         for (id, acc) in self.trans.iter().enumerate() {
             let event = self.event_name(acc.changed, acc.to_vec);
             let command = acc.changed & self.act_mask() != 0;
+            // A sensor edge with a command in the same scan is the control
+            // reacting to the plant: its timing is the sensor's, and is learned
+            // when the state is left by nothing else (see below).
+            let sensed = acc.changed & !self.act_mask() != 0;
             // The clock: the command clock, unless an edge of the part that
             // preceded every occurrence gives a much tighter interval.
             let command_width = acc.command.width();
@@ -522,7 +526,7 @@ impl PartLearner {
                 .enumerate()
                 .filter(|(_, h)| h.n >= options.min_samples && h.n == acc.count)
                 .min_by_key(|(_, h)| h.width());
-            let use_ref = !command
+            let use_ref = sensed
                 && best_ref.is_some_and(|(_, h)| {
                     acc.command.n < acc.count
                         || (h.width() as f64) <= options.tight_ratio * command_width as f64
@@ -538,16 +542,16 @@ impl PartLearner {
             }
             let guard = hist.guard(options, margin, scale);
             let spread = guard.q99 - guard.q01;
-            let timed = !command
+            let timed = sensed
                 && hist.n >= options.min_samples
                 && (spread <= options.timed_spread as f64 / scale
                     || spread <= options.timed_relative * guard.q50);
-            if !command && hist.n > 0 && hist.n < options.min_samples {
+            if sensed && hist.n > 0 && hist.n < options.min_samples {
                 untimed.push(format!(
                     "{event}: only {} occurrence(s), too few to time",
                     hist.n
                 ));
-            } else if !command && hist.n > 0 && !timed {
+            } else if sensed && hist.n > 0 && !timed {
                 untimed.push(format!(
                     "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}): it follows the product flow, not a command",
                     guard.q01, guard.q99
@@ -572,13 +576,29 @@ impl PartLearner {
             });
         }
 
+        // A reaction (sensor edge and command in one scan) out of a state that a
+        // command alone also leaves is the control's choice as much as the
+        // plant's: it is not timed.
+        let act_mask = self.act_mask();
+        let sensed =
+            |t: &TransitionModel| (self.states[t.from].0 ^ self.states[t.to].0) & !act_mask != 0;
+        for id in 0..self.states.len() {
+            let pure_command = transitions.iter().any(|t| t.from == id && !sensed(t));
+            if pure_command {
+                for t in transitions.iter_mut() {
+                    if t.from == id && t.command && t.timed {
+                        t.timed = false;
+                    }
+                }
+            }
+        }
         // A state that may be left by an untimed event also stands for "waiting
         // for the product": the time of its other exits depends on the product
         // too, so none of them is timed.
         for id in 0..self.states.len() {
             let exits: Vec<usize> = transitions
                 .iter()
-                .filter(|t| t.from == id && !t.command)
+                .filter(|t| t.from == id && (!t.command || t.timed))
                 .map(|t| t.id)
                 .collect();
             if exits.iter().any(|&i| !transitions[i].timed) {
@@ -604,8 +624,11 @@ impl PartLearner {
                 // A deadline only where every sensor event out of the state is
                 // timed: otherwise the state also stands for "waiting for a
                 // product", which may last any time.
-                let sensor_out: Vec<&&TransitionModel> =
-                    out.iter().filter(|t| !t.command).collect();
+                // Reactions count as sensor events where they are timed.
+                let sensor_out: Vec<&&TransitionModel> = out
+                    .iter()
+                    .filter(|t| !t.command || (t.timed && sensed(t)))
+                    .collect();
                 let expected = if sensor_out.iter().all(|t| t.timed) {
                     sensor_out
                         .iter()
@@ -623,7 +646,7 @@ impl PartLearner {
                     id,
                     values: (0..self.names.len()).map(|b| v >> b & 1 == 1).collect(),
                     visits,
-                    stable: out.iter().all(|t| t.command),
+                    stable: sensor_out.is_empty(),
                     expected,
                 }
             })
