@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 mod check;
 mod demo;
 mod diagnose;
+mod filter;
 mod learn;
 mod simulate;
 
@@ -26,6 +27,8 @@ struct Cli {
 enum Command {
     /// The whole chain on the embedded sorting plant: learn, inject each fault, diagnose.
     Demo(demo::DemoArgs),
+    /// The safety filter: constraints rewritten with fault flags and estimates.
+    Filter(filter::FilterArgs),
     /// Learn one timed model per plant part from logs of normal operation.
     Learn(learn::LearnArgs),
     /// Replay logs through every part's diagnoser: verdict changes as JSON lines.
@@ -92,6 +95,7 @@ fn main() -> ExitCode {
         Command::Diagnose(args) => diagnose::run(args),
         Command::Check(args) => check::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Filter(args) => filter::run(args),
     };
     match result {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,
