@@ -74,13 +74,14 @@ impl Compiled {
         let part = engine.part.clone();
         let nbits = part.names.len() as u32;
         let clocks = part.clocks.len();
-        // Largest threshold per clock, for saturation.
+        // Observed scans of at most `max_bits` edges.
         let masks: Vec<u32> = (1u32..(1 << nbits))
             .filter(|m| m.count_ones() <= max_bits)
             .collect();
         let mut graph: DiGraph<Node, Trigger> = DiGraph::new();
         let mut index: HashMap<Node, NodeIndex> = HashMap::new();
         let mut queue: VecDeque<NodeIndex> = VecDeque::new();
+        // Largest threshold per clock, for saturation.
         let mut cap: Vec<Time> = vec![0; clocks];
         let mut add = |engine: &Engine,
                        graph: &mut DiGraph<Node, Trigger>,

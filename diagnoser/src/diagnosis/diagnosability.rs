@@ -87,30 +87,22 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
     let mut out = Vec::new();
     for (m, mode) in part.modes.iter().enumerate().skip(1) {
         let f = m as u16;
-        // Every pair (F hypothesis, other hypothesis) in every node.
-        let mut pairs: Vec<Pair> = Vec::new();
+        // Every pair (F hypothesis, other hypothesis) in every node; hypotheses
+        // are distinct within a node, so the pairs are too.
+        let mut nodes: Vec<Pair> = Vec::new();
         for i in graph.node_indices() {
             let hyps = &engine.state(graph[i].state).hyps;
             for &a in hyps.iter().filter(|h| h.mode == f) {
                 for &b in hyps.iter().filter(|h| h.mode != f) {
-                    pairs.push((i, a, b));
+                    nodes.push((i, a, b));
                 }
             }
         }
-        let mut index: HashMap<Pair, usize> = HashMap::new();
-        let mut adj: Vec<Vec<(usize, bool, petgraph::graph::EdgeIndex)>> = Vec::new();
-        let mut nodes: Vec<Pair> = Vec::new();
-        let mut stack: Vec<Pair> = pairs;
-        while let Some(p) = stack.pop() {
-            if index.contains_key(&p) {
-                continue;
-            }
-            index.insert(p, nodes.len());
-            nodes.push(p);
-            adj.push(Vec::new());
-        }
+        let index: HashMap<Pair, usize> = nodes.iter().enumerate().map(|(k, &p)| (p, k)).collect();
+        let mut adj: Vec<Vec<(usize, bool, petgraph::graph::EdgeIndex)>> =
+            vec![Vec::new(); nodes.len()];
         // Edges between pairs (new pairs cannot appear: every node's pairs are in).
-        for (k, &(i, a, b)) in nodes.clone().iter().enumerate() {
+        for (k, &(i, a, b)) in nodes.iter().enumerate() {
             for e in graph.edges(i) {
                 let scan = matches!(e.weight(), Trigger::Scan(_));
                 let na = successors(engine, e.id(), a);
@@ -193,7 +185,6 @@ fn find_cycle(
 ) -> Option<Vec<(usize, petgraph::graph::EdgeIndex)>> {
     // Strongly connected components (Tarjan, iterative), then a scan edge
     // inside one of them closes a cycle.
-    let n = adj.len();
     let comp = scc(adj);
     // The shortest of the first cycles found reads best as a counterexample.
     let mut best: Option<Vec<(usize, petgraph::graph::EdgeIndex)>> = None;
@@ -212,7 +203,6 @@ fn find_cycle(
             }
         }
     }
-    let _ = n;
     best
 }
 

@@ -860,7 +860,9 @@ impl PartDiagnoser {
     /// The clock thresholds that matter to a set of hypotheses, per clock: guard
     /// bounds (for events) and the moments time alone changes the set (hidden
     /// transitions becoming possible, deadlines passing). A threshold `θ` is
-    /// passed when the reading is `>= θ`.
+    /// passed when the reading is `>= θ`. The timers are complete: between two
+    /// of them, [`Self::close`] gives the same set, which is what lets a replay
+    /// advance a set only when a timer fires.
     pub fn thresholds(&self, hyps: &[Hypothesis]) -> (Vec<Vec<Time>>, Vec<Vec<Time>>) {
         let mut all = vec![Vec::new(); self.clocks.len()];
         let mut timers = vec![Vec::new(); self.clocks.len()];
@@ -869,6 +871,11 @@ impl PartDiagnoser {
             .iter()
             .any(|m| matches!(m.kind, ModeKind::Glitch { .. }));
         for &h in hyps {
+            // A glitch ends by its deadline whatever the hypothesis's state.
+            if let Some((clock, limit)) = self.glitch_deadline(h) {
+                timers[clock as usize].push(limit + 1);
+                all[clock as usize].push(limit + 1);
+            }
             if h.has(Hypothesis::UNTIMED) || self.frozen(h) {
                 continue;
             }
@@ -884,15 +891,13 @@ impl PartDiagnoser {
                 all[c].push(m.lo);
                 all[c].push(m.hi + 1);
                 let sensed = m.changed & !self.act_mask;
-                let hidden =
-                    sensed & !dec == 0 || (glitches && h.mode == 0 && m.changed.count_ones() == 1);
+                // Hidden by the fault, or by a glitch that may start now
+                // (see `hidden_by_glitch`).
+                let hidden = sensed & !dec == 0
+                    || (glitches && !h.has(Hypothesis::GLITCH) && m.changed.count_ones() == 1);
                 if sensed != 0 && hidden {
                     timers[c].push(m.lo);
                 }
-            }
-            if let Some((clock, limit)) = self.glitch_deadline(h) {
-                timers[clock as usize].push(limit + 1);
-                all[clock as usize].push(limit + 1);
             }
             for &k in &self.expected[s] {
                 let m = &self.moves[s][k];

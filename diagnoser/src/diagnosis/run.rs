@@ -337,9 +337,9 @@ impl PlantDiagnoser {
             let p = part as usize;
             let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
             read(&run.origins, t, &mut self.before);
+            // Timers up to `t` have fired: the state is already up to date.
             let previous = run.state;
             let obs_before = run.obs;
-            let advanced = engine.advance(run.state, &self.before);
             // The scan resets the clocks of its edges.
             let after_obs = run.obs ^ changed;
             let acts = engine.part.actuator_mask();
@@ -355,7 +355,7 @@ impl PlantDiagnoser {
                 }
             }
             read(&run.origins, t, &mut self.after);
-            run.state = engine.scan(advanced, changed, &self.before, &self.after);
+            run.state = engine.scan(previous, changed, &self.before, &self.after);
             run.obs = after_obs;
             if changed & acts != 0 {
                 run.last_command = Some((obs_before, changed & acts));
@@ -367,7 +367,7 @@ impl PlantDiagnoser {
                 self.earliest = Some(x);
             }
             if engine.state(run.state).labels != engine.state(previous).labels {
-                self.report(p, t, advanced, Some((obs_before, changed)), out);
+                self.report(p, t, previous, Some((obs_before, changed)), out);
             }
         }
         pending.clear();
