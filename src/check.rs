@@ -1,18 +1,20 @@
 //! `gardefou check`: diagnosability of every fault, and the size of each part's
-//! compiled diagnoser against the centralised one; or event-diagnosability of a
-//! libFAUDES generator.
+//! compiled diagnoser against the centralised one; with `--filter`, how much the
+//! safety filter shrinks each diagnoser (seed 002 §4); or event-diagnosability of
+//! a libFAUDES generator.
 
 use std::fs;
 use std::io::Write;
 use std::path::PathBuf;
 
 use clap::Args;
-use diagnoser::diagnosis::compile::Compiled;
+use diagnoser::diagnosis::compile::{Commands, Compiled, Size};
 use diagnoser::diagnosis::diagnosability::{FaultDiagnosability, check};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::faudes;
 use diagnoser::model::Model;
 use diagnoser::{Plant, Time, time};
+use filter_coupling::simplify::PartFilter;
 
 use crate::Failure;
 
@@ -31,6 +33,11 @@ pub struct CheckArgs {
     /// Print the verdicts as JSON (one object per part) instead of text.
     #[arg(long)]
     json: bool,
+    /// Also size each part's diagnoser with any command, and with only the scans
+    /// the safety filter lets through (its constraints stay 0), beside the
+    /// learned control's.
+    #[arg(long, conflicts_with = "generator")]
+    filter: bool,
     /// Longest an unexpected sensor edge shows (as for `diagnose`).
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
@@ -78,6 +85,7 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
     let mut out = stdout.lock();
     let mut product: f64 = 1.0;
     let mut sum = 0usize;
+    let mut simplified: Vec<Simplified> = Vec::new();
     for engine in diagnoser.engines() {
         let mut engine = engine.clone();
         let compiled = Compiled::explore(&mut engine, 2);
@@ -90,13 +98,23 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
             fs::write(&path, compiled.to_dot(&engine, model.time_unit))
                 .map_err(|e| Failure::Io(format!("cannot write {}: {e}", path.display())))?;
         }
+        let simple = if args.filter {
+            let s = simplify(&plant, &engine, size, compiled.truncated)?;
+            simplified.push(s.clone());
+            Some(s)
+        } else {
+            None
+        };
         if args.json {
-            let v = serde_json::json!({
+            let mut v = serde_json::json!({
                 "part": engine.part.name,
                 "diagnoser": size,
                 "truncated": compiled.truncated,
                 "faults": verdicts,
             });
+            if let Some(s) = simple {
+                v["filter"] = serde_json::to_value(&s).map_err(|e| Failure::Io(e.to_string()))?;
+            }
             writeln!(out, "{v}").map_err(io)?;
             continue;
         }
@@ -133,6 +151,115 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
             plant.name
         )
         .map_err(io)?;
+        if args.filter {
+            write_simplified(&mut out, &simplified).map_err(io)?;
+        }
+    }
+    Ok(())
+}
+
+/// One part's diagnoser sized under the three command policies.
+#[derive(Debug, Clone, serde::Serialize)]
+struct Simplified {
+    part: String,
+    /// Any command in any observed state.
+    any: Size,
+    /// Any command, only the scans the filter lets through.
+    filtered: Size,
+    /// Commands as in the learned runs (the diagnoser `check` works on).
+    learned: Size,
+    /// Constraints that remove scans of the part.
+    constraints: Vec<String>,
+    /// Constraints that read the part but have too many unknowns to be used.
+    skipped: Vec<String>,
+    /// Whether an exploration stopped at its size limit.
+    truncated: bool,
+}
+
+/// Explores `engine`'s diagnoser with any command, then with the filter's
+/// restriction.
+fn simplify(
+    plant: &Plant,
+    engine: &diagnoser::diagnosis::Engine,
+    learned: Size,
+    truncated: bool,
+) -> Result<Simplified, Failure> {
+    let filter = PartFilter::new(plant, &engine.part.names)
+        .map_err(|e| bad(format!("part '{}': {e}", engine.part.name)))?;
+    let mut e = engine.clone();
+    let any = Compiled::explore_with(&mut e, 2, Commands::Any);
+    let allows = |before: u32, after: u32| filter.allows(before, after);
+    let filtered = Compiled::explore_with(&mut e, 2, Commands::Filter(&allows));
+    Ok(Simplified {
+        part: engine.part.name.clone(),
+        any: any.size(),
+        filtered: filtered.size(),
+        learned,
+        constraints: filter.constraints().map(str::to_string).collect(),
+        skipped: filter
+            .skipped()
+            .iter()
+            .map(|s| s.constraint.clone())
+            .collect(),
+        truncated: truncated || any.truncated || filtered.truncated,
+    })
+}
+
+fn write_simplified(out: &mut impl Write, rows: &[Simplified]) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "filter-based simplification (seed 002 §4): states / transitions of each part's diagnoser"
+    )?;
+    let cell = |s: &Size| format!("{} / {}", s.states, s.transitions);
+    let table: Vec<[String; 5]> = rows
+        .iter()
+        .map(|r| {
+            let mut by = r.constraints.join(", ");
+            if by.is_empty() {
+                by = "-".to_string();
+            }
+            if !r.skipped.is_empty() {
+                by.push_str(&format!(" (too many unknowns: {})", r.skipped.join(", ")));
+            }
+            if r.truncated {
+                by.push_str(" [exploration truncated]");
+            }
+            [
+                r.part.clone(),
+                cell(&r.any),
+                cell(&r.filtered),
+                cell(&r.learned),
+                by,
+            ]
+        })
+        .collect();
+    let head = [
+        "part",
+        "any command",
+        "filtered",
+        "learned control",
+        "removed by",
+    ];
+    let mut width = head.map(|h| h.chars().count());
+    for row in &table {
+        for (w, c) in width.iter_mut().zip(row) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cells: [&str; 5]| {
+        let mut l = String::new();
+        for (k, (c, w)) in cells.iter().zip(width).enumerate() {
+            if k + 1 == cells.len() {
+                l.push_str(&format!("  {c}"));
+            } else {
+                l.push_str(&format!("  {c:<w$}"));
+            }
+        }
+        l
+    };
+    writeln!(out, "{}", line(head))?;
+    for row in &table {
+        writeln!(out, "{}", line(row.each_ref().map(String::as_str)))?;
     }
     Ok(())
 }

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod check;
+mod closed_loop;
 mod demo;
 mod diagnose;
 mod filter;

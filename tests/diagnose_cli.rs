@@ -324,27 +324,6 @@ fn bad_models_are_one_line_errors_with_exit_code_2() {
     assert!(err.contains("learned for plant"), "{err}");
 }
 
-#[test]
-fn demo_diagnoses_every_turntable_fault() {
-    let o = gardefou(&["demo", "--json"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let rows: Vec<Value> = serde_json::from_slice(&o.stdout).expect("a JSON array");
-    assert_eq!(rows.len(), 12);
-    for r in &rows {
-        let fault = r["fault"].as_str().expect("fault");
-        if r["verdict"] != "normal" {
-            assert!(labels(r).contains(&fault), "{r}");
-            assert!(
-                r["detection_delay_ms"].as_f64().is_some_and(|d| d >= 0.0),
-                "{r}"
-            );
-        }
-    }
-    let f2 = rows.iter().find(|r| r["fault"] == "F2").expect("F2 row");
-    assert_eq!(labels(f2), ["F2"]);
-    assert_eq!(f2["flags"], serde_json::json!(["def_C4"]));
-}
-
 /// On the cylinder rig the control drops the order in the scan the end sensor
 /// rises: that reaction's timing is learned, so a cylinder blocked on its way
 /// is caught once its deadline passes (the log ends at 1 200 000 ms).

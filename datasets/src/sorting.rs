@@ -291,6 +291,16 @@ impl SortingLine {
         self.next_id += 1;
     }
 
+    /// Boxes delivered so far, on both sides.
+    pub fn delivered(&self) -> u64 {
+        self.delivered_left + self.delivered_right
+    }
+
+    /// Whether boxes are on the line or waiting to enter it.
+    pub fn occupied(&self) -> bool {
+        !self.boxes.is_empty() || self.waiting > 0
+    }
+
     /// Stops spontaneous arrivals (boxes then come only from [`Self::place_box`]).
     pub fn without_arrivals(mut self) -> Self {
         self.next_arrival = Some(Time::MAX);

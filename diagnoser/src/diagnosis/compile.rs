@@ -6,10 +6,16 @@
 //! The exploration runs the same [`Engine`] as a replay, on representative clock
 //! readings: each clock is read at 0, at each threshold that matters to the
 //! current state, or not at all (unknown, at a log's start). Readings saturate
-//! past the part's largest threshold, so the exploration is finite. Commands
-//! come as the control issued them in the learned runs: in the same observed
-//! states (seed 002 does not blame the control). It is for
-//! sizes, pictures and the diagnosability check; a replay never needs it.
+//! past the part's largest threshold, so the exploration is finite.
+//!
+//! What the control may command is a choice ([`Commands`]): by default
+//! ([`Compiled::explore`]) commands come as the control issued them in the
+//! learned runs, in the same observed states (seed 002 does not blame the
+//! control); [`Commands::Any`] knows nothing of the control, and
+//! [`Commands::Filter`] keeps only the scans a safety filter lets through (seed
+//! 002 §4: the filter simplifies the diagnosers; the predicate itself is built
+//! in `filter-coupling`). It is for sizes, pictures and the diagnosability
+//! check; a replay never needs it.
 
 use std::collections::{HashMap, VecDeque};
 use std::fmt::Write as _;
@@ -17,7 +23,7 @@ use std::fmt::Write as _;
 use petgraph::graph::{DiGraph, NodeIndex};
 
 use super::engine::Engine;
-use super::part::Clock;
+use super::part::{Clock, PartDiagnoser};
 use crate::Time;
 
 /// An abstract state of the exploration: a diagnoser state and the clock
@@ -42,6 +48,53 @@ pub enum Trigger {
         /// The reading reached.
         at: Time,
     },
+}
+
+/// Which observed scans the exploration lets happen, as far as the control is
+/// concerned. Scans are given as the observed state vectors before and after
+/// them, bit `i` being the part's `i`-th signal ([`PartDiagnoser::names`]:
+/// actuators, as written, then sensors, as read).
+#[derive(Clone, Copy, Default)]
+pub enum Commands<'a> {
+    /// Any command change in any observed state: the diagnoser knows nothing of
+    /// the control. Sensor edges are free, as under every policy.
+    Any,
+    /// Any command change and any sensor edges, but only the scans `(before,
+    /// after)` for which the predicate holds: e.g. those after which no safety
+    /// constraint is 1 (see `filter_coupling::simplify`).
+    Filter(&'a dyn Fn(u32, u32) -> bool),
+    /// Commands as the control issued them in the learned runs, in the same
+    /// observed states (the model's transitions that include a command; seed
+    /// 002 does not blame the control); sensor edges are free.
+    #[default]
+    Learned,
+}
+
+impl std::fmt::Debug for Commands<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Commands::Any => "Any",
+            Commands::Filter(_) => "Filter(..)",
+            Commands::Learned => "Learned",
+        })
+    }
+}
+
+impl Commands<'_> {
+    /// Whether the scan that changes the bits `changed` from the observed state
+    /// `obs` may happen.
+    fn allow(&self, part: &PartDiagnoser, obs: u32, changed: u32) -> bool {
+        match self {
+            Commands::Any => true,
+            Commands::Filter(allowed) => allowed(obs, obs ^ changed),
+            Commands::Learned => {
+                changed & part.actuator_mask() == 0
+                    || part
+                        .model_state(obs)
+                        .is_some_and(|s| part.moves(s).iter().any(|m| m.changed == changed))
+            }
+        }
+    }
 }
 
 /// The compiled diagnoser of one part.
@@ -69,8 +122,15 @@ pub const NODE_LIMIT: usize = 200_000;
 
 impl Compiled {
     /// Explores every state reachable from the model's states (normal, clocks
-    /// unknown and then at 0), with observed scans of at most `max_bits` edges.
+    /// unknown and then at 0), with observed scans of at most `max_bits` edges
+    /// and commands as in the learned runs ([`Commands::Learned`]).
     pub fn explore(engine: &mut Engine, max_bits: u32) -> Compiled {
+        Compiled::explore_with(engine, max_bits, Commands::Learned)
+    }
+
+    /// As [`Compiled::explore`], with the scans `commands` lets happen. The
+    /// exploration starts from the model's states under every policy.
+    pub fn explore_with(engine: &mut Engine, max_bits: u32, commands: Commands<'_>) -> Compiled {
         let part = engine.part.clone();
         let nbits = part.names.len() as u32;
         let clocks = part.clocks.len();
@@ -159,13 +219,7 @@ impl Compiled {
             // Observed scans.
             let acts = part.actuator_mask();
             for &ch in &masks {
-                // The control is not blamed (seed 002): it issues commands as in
-                // the learned runs, in the observed states it issued them in.
-                if ch & acts != 0
-                    && !part
-                        .model_state(st.obs)
-                        .is_some_and(|s| part.moves(s).iter().any(|m| m.changed == ch))
-                {
+                if !commands.allow(&part, st.obs, ch) {
                     continue;
                 }
                 let after_obs = st.obs ^ ch;

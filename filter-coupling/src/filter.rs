@@ -1,0 +1,922 @@
+//! The safety filter as the PLC runs it, once per scan.
+//!
+//! A scan of the filter:
+//! 1. reads the sensors, and the orders written in the previous scan;
+//! 2. updates the estimate intervals (`I1`, `I2`, …: the time since each part's
+//!    actuators took their present values) and the observers;
+//! 3. computes the orders, either by seed 001's safe control by constraints
+//!    ([`Mode::Control`]: `S'k = !f0k & g1k | f1k`, then the combined constraints)
+//!    or by taking the control program's orders as they are ([`Mode::Filter`]);
+//! 4. checks every safety constraint on those orders. A violated one is reported
+//!    with the literals that made it true, and every order then takes the value
+//!    the constraints force, with priority to 0 (the *fallback*, `Sk = f1k`);
+//! 5. sends a part to the fallback while one of its actuator or element faults is
+//!    flagged (`def_<partition>`): its orders are those the constraints force to 1,
+//!    e.g. A4 stays on while a box sits on the turntable at the unloading position.
+//!
+//! With coupling on, the safety constraints are rewritten by [`crate::rewrite`]:
+//! a flagged sensor's literals read its temporal estimate, conservatively. The
+//! functional constraints read the estimate the other way round (a requirement
+//! holds only where it certainly holds): the safety constraints still decide what
+//! is allowed, the functional ones only ask for moves.
+//!
+//! `f0k`, `f1k` and `g1k` are read off each constraint by Shannon cofactors: a
+//! constraint `C` forbids `Sk = 1` where `C[Sk:=1] & !C[Sk:=0]`, and `Sk = 0`
+//! where `C[Sk:=0] & !C[Sk:=1]`. For seed 001's monomials this is the usual
+//! reading (`C3 & !C4 & S1` gives `f01 = C3 & !C4`), and it also covers edges of
+//! the outputs (`!C4 & RE(A4)` gives `f04 = !C4 & !prev(A4)`) and the rewritten
+//! constraints, which are no longer monomials.
+
+use std::collections::HashMap;
+use std::fmt;
+
+use diagnoser::expr::Expr;
+use diagnoser::model::Model;
+use diagnoser::plant::ObserverRule;
+use diagnoser::{FaultTemplate, Plant, SignalKind, Time};
+
+use crate::rewrite::{Estimate, RewriteOptions, rewrite};
+use crate::synthesis::{CombinedLaw, OutputLaw, output_law};
+
+/// How the filter uses the diagnosers' flags.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Coupling {
+    /// The constraints read the sensors as they are; flags are ignored.
+    #[default]
+    None,
+    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
+    /// element partition's part to the fallback.
+    Flags,
+    /// As [`Coupling::Flags`], and `suspect_<partition>` also switches a sensor
+    /// to its estimate.
+    FlagsAndSuspects,
+}
+
+impl Coupling {
+    /// Short name, as in the demo's table: `none`, `def`, `def+suspect`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Coupling::None => "none",
+            Coupling::Flags => "def",
+            Coupling::FlagsAndSuspects => "def+suspect",
+        }
+    }
+}
+
+/// Where a scan's orders come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// The control program wrote them into the outputs; the filter checks them.
+    Filter,
+    /// Safe control by constraints computes them (seed 001 §4).
+    Control,
+}
+
+/// A safety constraint that held in a scan, with the literals that made it true.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Violation {
+    /// Constraint name, e.g. `CSs5`.
+    pub constraint: String,
+    /// The true literals, e.g. `["!C5", "A3"]`.
+    pub literals: Vec<String>,
+}
+
+impl fmt::Display for Violation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} ({})", self.constraint, self.literals.join(" & "))
+    }
+}
+
+/// What one scan of the filter did.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ScanOutcome {
+    /// Safety constraints violated by the proposed orders (empty in a normal scan).
+    pub violated: Vec<Violation>,
+    /// Whether the whole plant was sent to the fallback.
+    pub fallback: bool,
+    /// Parts sent to the fallback by a flagged actuator or element fault.
+    pub parts_in_fallback: Vec<usize>,
+}
+
+/// A compiled expression: names resolved to slots of the filter's variables.
+#[derive(Debug, Clone, PartialEq)]
+enum Op {
+    Const(bool),
+    Var(usize),
+    Prev(usize),
+    Rise(usize),
+    Fall(usize),
+    Not(Box<Op>),
+    And(Vec<Op>),
+    Or(Vec<Op>),
+}
+
+impl Op {
+    fn eval(&self, cur: &[bool], prev: &[bool]) -> bool {
+        match self {
+            Op::Const(b) => *b,
+            Op::Var(i) => cur[*i],
+            Op::Prev(i) => prev[*i],
+            Op::Rise(i) => cur[*i] && !prev[*i],
+            Op::Fall(i) => !cur[*i] && prev[*i],
+            Op::Not(e) => !e.eval(cur, prev),
+            Op::And(es) => es.iter().all(|e| e.eval(cur, prev)),
+            Op::Or(es) => es.iter().any(|e| e.eval(cur, prev)),
+        }
+    }
+}
+
+/// One named interval of a part's clock, `[from, to[` in nanoseconds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Interval {
+    /// Its name, e.g. `I3`.
+    pub name: String,
+    /// Start, included.
+    pub from: Time,
+    /// End, excluded (`None`: unbounded).
+    pub to: Option<Time>,
+}
+
+/// The estimate intervals of one part.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PartIntervals {
+    /// The part's actuators, whose orders start its clock.
+    pub actuators: Vec<String>,
+    /// Per estimated state of those actuators (their values, in order): its
+    /// intervals of the time since they took it.
+    pub states: Vec<(Vec<bool>, Vec<Interval>)>,
+}
+
+/// A constraint as the filter evaluates it.
+#[derive(Debug, Clone)]
+struct Compiled {
+    name: String,
+    /// The expression read (rewritten when coupled), for reports.
+    expr: Expr,
+    op: Op,
+    /// The outputs it reads (slots).
+    outputs: Vec<usize>,
+}
+
+/// How one output is computed by safe control.
+#[derive(Debug, Clone, Default)]
+struct LawSlots {
+    slot: usize,
+    /// Simple safety constraints reading this output (indices into `safety`).
+    safety: Vec<usize>,
+    /// Functional constraints reading it (indices into `functional`).
+    functional: Vec<usize>,
+}
+
+/// A combined constraint: when it holds, `other` is set to 0.
+#[derive(Debug, Clone)]
+struct Combined {
+    constraint: usize,
+    other: usize,
+}
+
+/// The clock of one part's estimates: the time since its actuators took their
+/// present values.
+#[derive(Debug, Clone)]
+struct PartClock {
+    actuators: Vec<usize>,
+    /// When the present values were written (`None`: they have held since
+    /// before the first scan, so every clock reads past its last threshold).
+    since: Option<Time>,
+    /// One group per estimated actuator state: the values, and its intervals
+    /// `(slot, from, to)` in nanoseconds (`to = None`: unbounded).
+    groups: Vec<Schedule<usize>>,
+}
+
+/// One estimated state of a part's actuators (their values, in order) and its
+/// intervals `(variable, from, to)` in nanoseconds (`to = None`: unbounded).
+type Schedule<V> = (Vec<bool>, Vec<(V, Time, Option<Time>)>);
+
+/// A part's name and its schedules, with interval names.
+type PartSchedules = (String, Vec<Schedule<String>>);
+
+/// The safety filter of a plant.
+#[derive(Debug, Clone)]
+pub struct Filter {
+    names: Vec<String>,
+    index: HashMap<String, usize>,
+    signals: usize,
+    /// Per signal slot: whether it is a sensor (read from `io`).
+    sensor: Vec<bool>,
+    actuators: Vec<usize>,
+    cur: Vec<bool>,
+    prev: Vec<bool>,
+    observers: Vec<(usize, ObserverOp)>,
+    clocks: Vec<PartClock>,
+    safety: Vec<Compiled>,
+    functional: Vec<Compiled>,
+    laws: Vec<LawSlots>,
+    combined: Vec<Combined>,
+    /// Per part: the flags of its actuator and element partitions, and its actuators.
+    part_fallback: Vec<(Vec<usize>, Vec<usize>)>,
+    estimates: Vec<Estimate>,
+    coupling: Coupling,
+    started: bool,
+    /// Scratch: the orders being computed.
+    orders: Vec<bool>,
+}
+
+#[derive(Debug, Clone)]
+enum ObserverOp {
+    SetReset { set: Op, reset: Op },
+    Toggle(Op),
+}
+
+/// The partition holding a sensor fault of `sensor`, else the sensor's name.
+pub fn sensor_partition(plant: &Plant, sensor: &str) -> String {
+    plant
+        .faults
+        .iter()
+        .filter(|f| {
+            matches!(
+                &f.template,
+                FaultTemplate::Stuck0(s) | FaultTemplate::Stuck1(s)
+                | FaultTemplate::UnexpectedRise(s) | FaultTemplate::UnexpectedFall(s) if s == sensor
+            )
+        })
+        .find_map(|f| plant.partition_of(&f.label))
+        .map_or_else(|| sensor.to_string(), |p| p.name.clone())
+}
+
+/// The learned estimates of every sensor that has one, with the interval names
+/// qualified by their part (`turntable_I3`) only where two parts share a name.
+fn estimates_and_clocks(
+    plant: &Plant,
+    model: &Model,
+) -> Result<(Vec<Estimate>, Vec<PartSchedules>), String> {
+    let unit = model.time_unit.nanos() as f64;
+    let parts: Vec<_> = model
+        .parts
+        .iter()
+        .filter(|p| !p.sensor_estimates.is_empty())
+        .collect();
+    let mut seen: HashMap<&str, usize> = HashMap::new();
+    for p in &parts {
+        for e in &p.estimates {
+            for i in &e.intervals {
+                *seen.entry(i.name.as_str()).or_default() += 1;
+            }
+        }
+    }
+    let qualify = |part: &str, name: &str| {
+        if seen.get(name).copied().unwrap_or(0) > 1 {
+            format!("{part}_{name}")
+        } else {
+            name.to_string()
+        }
+    };
+    let mut estimates = Vec::new();
+    let mut clocks = Vec::new();
+    for p in parts {
+        let mut groups = Vec::new();
+        for e in &p.estimates {
+            let mut values = Vec::new();
+            for pair in e.actuators.split_whitespace() {
+                let (name, v) = pair
+                    .split_once('=')
+                    .ok_or_else(|| format!("part {}: bad actuator state '{pair}'", p.name))?;
+                values.push((name.to_string(), v == "1"));
+            }
+            let intervals = e
+                .intervals
+                .iter()
+                .map(|i| {
+                    (
+                        qualify(&p.name, &i.name),
+                        (i.from * unit).round() as Time,
+                        i.to.map(|to| (to * unit).round() as Time),
+                    )
+                })
+                .collect();
+            groups.push((values, intervals));
+        }
+        // Actuator values in the part's declared order.
+        let part = plant
+            .parts
+            .iter()
+            .find(|q| q.name == p.name)
+            .ok_or_else(|| format!("the model's part '{}' is not in the plant file", p.name))?;
+        let mut ordered = Vec::new();
+        for (values, intervals) in groups {
+            let mut v = Vec::new();
+            for a in &part.actuators {
+                let name = plant.signals.name(*a);
+                let value = values
+                    .iter()
+                    .find(|(n, _)| n == name)
+                    .map(|(_, v)| *v)
+                    .ok_or_else(|| format!("part {}: estimate lacks actuator {name}", p.name))?;
+                v.push(value);
+            }
+            ordered.push((v, intervals));
+        }
+        clocks.push((p.name.clone(), ordered));
+        for s in &p.sensor_estimates {
+            let partition = sensor_partition(plant, &s.sensor);
+            let expr: Vec<String> = s
+                .expr
+                .split('|')
+                .map(|n| qualify(&p.name, n.trim()))
+                .collect();
+            let uncertain: Vec<String> = s.uncertain.iter().map(|n| qualify(&p.name, n)).collect();
+            estimates.push(Estimate::from_model(
+                &s.sensor,
+                &partition,
+                &expr.join(" | "),
+                &uncertain,
+            )?);
+        }
+    }
+    Ok((estimates, clocks))
+}
+
+/// `!rewrite(!e)`: the rewritten expression holds only where it holds whatever
+/// the failed sensors' uncertain values are.
+fn rewrite_certain(e: &Expr, estimates: &[Estimate], options: RewriteOptions) -> Expr {
+    match rewrite(&Expr::Not(Box::new(e.clone())), estimates, options) {
+        Expr::Not(inner) => *inner,
+        other => Expr::Not(Box::new(other)),
+    }
+}
+
+impl Filter {
+    /// The filter of `plant`. `model` gives the sensors' estimates; without it
+    /// (or with [`Coupling::None`]) the constraints are never rewritten.
+    pub fn new(plant: &Plant, model: Option<&Model>, coupling: Coupling) -> Result<Filter, String> {
+        let mut names: Vec<String> = Vec::new();
+        let mut index: HashMap<String, usize> = HashMap::new();
+        let mut slot = |name: &str, names: &mut Vec<String>| -> usize {
+            if let Some(&i) = index.get(name) {
+                return i;
+            }
+            names.push(name.to_string());
+            index.insert(name.to_string(), names.len() - 1);
+            names.len() - 1
+        };
+        for (_, s) in plant.signals.iter() {
+            slot(&s.name, &mut names);
+        }
+        let signals = names.len();
+        let actuators: Vec<usize> = plant
+            .signals
+            .of_kind(SignalKind::Actuator)
+            .map(|a| a.index())
+            .collect();
+        for v in &plant.variables {
+            slot(v, &mut names);
+        }
+        for o in &plant.observers {
+            slot(&o.name, &mut names);
+        }
+        for p in &plant.partitions {
+            slot(&p.flag(), &mut names);
+            slot(&format!("suspect_{}", p.name), &mut names);
+        }
+        let (estimates, clock_defs) = match (model, coupling) {
+            (Some(m), c) if c != Coupling::None => estimates_and_clocks(plant, m)?,
+            _ => (Vec::new(), Vec::new()),
+        };
+        let mut clocks = Vec::new();
+        for (part_name, groups) in clock_defs {
+            let part = plant
+                .parts
+                .iter()
+                .find(|p| p.name == part_name)
+                .ok_or_else(|| format!("no part {part_name}"))?;
+            let groups = groups
+                .into_iter()
+                .map(|(values, intervals)| {
+                    let iv = intervals
+                        .into_iter()
+                        .map(|(n, from, to)| (slot(&n, &mut names), from, to))
+                        .collect();
+                    (values, iv)
+                })
+                .collect();
+            clocks.push(PartClock {
+                actuators: part.actuators.iter().map(|a| a.index()).collect(),
+                since: None,
+                groups,
+            });
+        }
+        let options = RewriteOptions {
+            use_suspects: coupling == Coupling::FlagsAndSuspects,
+        };
+        let compile =
+            |e: &Expr, index: &HashMap<String, usize>| -> Result<Op, String> { compile(e, index) };
+        let mut safety = Vec::new();
+        for c in &plant.constraints {
+            let expr = rewrite(&c.expr, &estimates, options);
+            let op = compile(&expr, &index)?;
+            safety.push(Compiled {
+                name: c.name.clone(),
+                outputs: outputs_of(&c.expr, &index, &actuators),
+                expr,
+                op,
+            });
+        }
+        let mut functional = Vec::new();
+        for c in &plant.functional {
+            let expr = if estimates.is_empty() {
+                c.expr.clone()
+            } else {
+                rewrite_certain(&c.expr, &estimates, options)
+            };
+            let op = compile(&expr, &index)?;
+            functional.push(Compiled {
+                name: c.name.clone(),
+                outputs: outputs_of(&c.expr, &index, &actuators),
+                expr,
+                op,
+            });
+        }
+        let mut laws: Vec<LawSlots> = actuators
+            .iter()
+            .map(|&slot| LawSlots {
+                slot,
+                ..LawSlots::default()
+            })
+            .collect();
+        let mut combined = Vec::new();
+        for (i, (c, compiled)) in plant.constraints.iter().zip(&safety).enumerate() {
+            match (&c.priority, compiled.outputs.as_slice()) {
+                (None, [k]) => {
+                    if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
+                        law.safety.push(i);
+                    }
+                }
+                (Some(p), outs) => {
+                    let p = p.index();
+                    let others: Vec<usize> = outs.iter().copied().filter(|&o| o != p).collect();
+                    match others.as_slice() {
+                        [other] => combined.push(Combined {
+                            constraint: i,
+                            other: *other,
+                        }),
+                        _ => {
+                            return Err(format!(
+                                "constraint {}: a combined constraint reads its priority output and exactly one other",
+                                c.name
+                            ));
+                        }
+                    }
+                }
+                // Read by no output, or by several with no priority: only checked.
+                _ => {}
+            }
+        }
+        for (i, c) in functional.iter().enumerate() {
+            for k in &c.outputs {
+                if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
+                    law.functional.push(i);
+                }
+            }
+        }
+        let mut observers = Vec::new();
+        for o in &plant.observers {
+            let s = index[&o.name];
+            let op = match &o.rule {
+                ObserverRule::SetReset { set, reset } => ObserverOp::SetReset {
+                    set: compile(set, &index)?,
+                    reset: compile(reset, &index)?,
+                },
+                ObserverRule::Toggle(e) => ObserverOp::Toggle(compile(e, &index)?),
+            };
+            observers.push((s, op));
+        }
+        let mut part_fallback = Vec::new();
+        for part in &plant.parts {
+            let mut flags = Vec::new();
+            if coupling != Coupling::None {
+                for p in &plant.partitions {
+                    let hits = p.faults.iter().any(|label| {
+                        plant.faults.iter().any(|f| {
+                            f.label == *label
+                                && match &f.template {
+                                    FaultTemplate::ActuatorStuck0(a)
+                                    | FaultTemplate::ActuatorStuck1(a) => {
+                                        part.actuators.iter().any(|x| plant.signals.name(*x) == a)
+                                    }
+                                    FaultTemplate::BlockedAt { element, .. }
+                                    | FaultTemplate::BlockedBetween { element, .. } => {
+                                        part.element.as_deref() == Some(element.as_str())
+                                    }
+                                    _ => false,
+                                }
+                        })
+                    });
+                    if hits {
+                        flags.push(index[&p.flag()]);
+                    }
+                }
+            }
+            part_fallback.push((flags, part.actuators.iter().map(|a| a.index()).collect()));
+        }
+        let n = names.len();
+        let mut cur = vec![false; n];
+        for o in &plant.observers {
+            cur[index[&o.name]] = o.init;
+        }
+        let sensor = (0..signals).map(|i| !actuators.contains(&i)).collect();
+        Ok(Filter {
+            names,
+            index,
+            signals,
+            sensor,
+            actuators,
+            prev: cur.clone(),
+            cur,
+            observers,
+            clocks,
+            safety,
+            functional,
+            laws,
+            combined,
+            part_fallback,
+            estimates,
+            coupling,
+            started: false,
+            orders: Vec::new(),
+        })
+    }
+
+    /// How it uses the flags.
+    pub fn coupling(&self) -> Coupling {
+        self.coupling
+    }
+
+    /// The sensors' estimates it switches to (empty without coupling).
+    pub fn estimates(&self) -> &[Estimate] {
+        &self.estimates
+    }
+
+    /// The safety constraints as evaluated: `(name, expression)`, rewritten when
+    /// coupled.
+    pub fn safety_constraints(&self) -> impl Iterator<Item = (&str, &Expr)> {
+        self.safety.iter().map(|c| (c.name.as_str(), &c.expr))
+    }
+
+    /// The functional constraints as evaluated.
+    pub fn functional_constraints(&self) -> impl Iterator<Item = (&str, &Expr)> {
+        self.functional.iter().map(|c| (c.name.as_str(), &c.expr))
+    }
+
+    /// Raises or lowers a flag (`def_C4`, `suspect_P`) or sets an internal
+    /// variable; false if the filter has no such name.
+    pub fn set(&mut self, name: &str, value: bool) -> bool {
+        match self.index.get(name) {
+            Some(&i) if i >= self.signals => {
+                self.cur[i] = value;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// The value of any variable of the filter (signal, observer, interval,
+    /// flag) in the last scan.
+    pub fn value(&self, name: &str) -> Option<bool> {
+        self.index.get(name).map(|&i| self.cur[i])
+    }
+
+    /// Runs one scan at `t`. `io` is indexed like the plant's signals: sensors as
+    /// read now, actuators as proposed by the control program ([`Mode::Filter`])
+    /// or ignored ([`Mode::Control`]). The orders are written back into `io`.
+    pub fn scan(&mut self, t: Time, io: &mut [bool], mode: Mode) -> ScanOutcome {
+        let mut outcome = ScanOutcome::default();
+        // What was current is now previous; then this scan's sensors.
+        self.prev.copy_from_slice(&self.cur);
+        for (i, &v) in io.iter().enumerate().take(self.signals) {
+            if self.sensor[i] {
+                self.cur[i] = v;
+            }
+        }
+        if !self.started {
+            // No edge at the first scan: the orders in `io` stand for those
+            // of the scan before.
+            let n = self.signals.min(io.len());
+            self.prev[..n].copy_from_slice(&io[..n]);
+            self.cur[..n].copy_from_slice(&io[..n]);
+            self.started = true;
+        }
+        self.update_intervals(t);
+        self.update_observers();
+
+        // Orders: proposed, or computed from the constraints.
+        self.orders.clear();
+        self.orders.extend(self.actuators.iter().map(|&a| io[a]));
+        if mode == Mode::Control {
+            for k in 0..self.laws.len() {
+                let proposed = self.orders[k];
+                self.orders[k] = self.safe_order(k, proposed);
+            }
+            self.apply_combined();
+        }
+        for (k, &a) in self.actuators.iter().enumerate() {
+            self.cur[a] = self.orders[k];
+        }
+        for c in &self.safety {
+            if c.op.eval(&self.cur, &self.prev) {
+                outcome.violated.push(Violation {
+                    constraint: c.name.clone(),
+                    literals: crate::eval::true_literals(&c.expr, &Slots(self)),
+                });
+            }
+        }
+        if !outcome.violated.is_empty() {
+            outcome.fallback = true;
+            for k in 0..self.laws.len() {
+                self.orders[k] = self.forced(k).1;
+            }
+        } else {
+            for p in 0..self.part_fallback.len() {
+                let (flags, acts) = &self.part_fallback[p];
+                if flags.iter().any(|&f| self.cur[f]) {
+                    outcome.parts_in_fallback.push(p);
+                    for a in acts.clone() {
+                        if let Some(k) = self.laws.iter().position(|l| l.slot == a) {
+                            self.orders[k] = self.forced(k).1;
+                        }
+                    }
+                }
+            }
+        }
+        for (k, &a) in self.actuators.iter().enumerate() {
+            self.cur[a] = self.orders[k];
+            io[a] = self.orders[k];
+        }
+        self.note_orders(t);
+        outcome
+    }
+
+    /// Restarts each part's clock where its orders changed in this scan.
+    fn note_orders(&mut self, t: Time) {
+        for c in &mut self.clocks {
+            if c.actuators.iter().any(|&a| self.cur[a] != self.prev[a]) {
+                c.since = Some(t);
+            }
+        }
+    }
+
+    fn update_intervals(&mut self, t: Time) {
+        for c in &self.clocks {
+            let elapsed = c.since.map_or(Time::MAX / 2, |s| t.saturating_sub(s));
+            for (values, intervals) in &c.groups {
+                let here = c
+                    .actuators
+                    .iter()
+                    .zip(values)
+                    .all(|(&a, &v)| self.cur[a] == v);
+                for &(slot, from, to) in intervals {
+                    self.cur[slot] = here && elapsed >= from && to.is_none_or(|to| elapsed < to);
+                }
+            }
+        }
+    }
+
+    fn update_observers(&mut self) {
+        for (slot, op) in &self.observers {
+            let old = self.cur[*slot];
+            self.cur[*slot] = match op {
+                ObserverOp::SetReset { set, reset } => {
+                    if reset.eval(&self.cur, &self.prev) {
+                        false
+                    } else if set.eval(&self.cur, &self.prev) {
+                        true
+                    } else {
+                        old
+                    }
+                }
+                ObserverOp::Toggle(e) => old ^ e.eval(&self.cur, &self.prev),
+            };
+        }
+    }
+
+    /// `(f0k, f1k)` of output `k` in this scan.
+    fn forced(&mut self, k: usize) -> (bool, bool) {
+        let law = &self.laws[k];
+        let (mut f0, mut f1) = (false, false);
+        for &i in &law.safety {
+            let (zero, one) = cofactors(&self.safety[i].op, &mut self.cur, &self.prev, law.slot);
+            f0 |= one && !zero;
+            f1 |= zero && !one;
+        }
+        (f0, f1)
+    }
+
+    /// `S'k = !f0k & g1k | f1k`. `g1k` is the disjunction of the functional
+    /// constraints asking for `Sk = 1`; an output that only has constraints
+    /// asking for 0 is wanted at 1 elsewhere (seed 001 eq. 14), and one with no
+    /// functional constraint keeps the control program's order.
+    fn safe_order(&mut self, k: usize, proposed: bool) -> bool {
+        let (f0, f1) = self.forced(k);
+        let slot = self.laws[k].slot;
+        let (mut g1, mut g0, mut any_g1) = (false, false, false);
+        let law = &self.laws[k];
+        for &i in &law.functional {
+            let op = &self.functional[i].op;
+            let (zero, one) = cofactors(op, &mut self.cur, &self.prev, slot);
+            g1 |= zero && !one;
+            g0 |= one && !zero;
+            // Whether this constraint ever asks for 1: it reads `!Sk`.
+            any_g1 |= reads_negated(op, slot);
+        }
+        let wanted = if any_g1 {
+            g1 && !g0
+        } else if self.laws[k].functional.is_empty() {
+            proposed
+        } else {
+            !g0
+        };
+        !f0 && wanted || f1
+    }
+
+    /// Seed 001 figure 3: while a combined constraint holds, its non-priority
+    /// output is set to 0.
+    fn apply_combined(&mut self) {
+        for _ in 0..=self.combined.len() {
+            for (k, &a) in self.actuators.iter().enumerate() {
+                self.cur[a] = self.orders[k];
+            }
+            let mut changed = false;
+            for c in &self.combined {
+                if self.safety[c.constraint].op.eval(&self.cur, &self.prev) && self.cur[c.other] {
+                    self.cur[c.other] = false;
+                    if let Some(k) = self.actuators.iter().position(|&a| a == c.other) {
+                        self.orders[k] = false;
+                    }
+                    changed = true;
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+    }
+
+    /// Each output's law and the combined constraints, as expressions (the same
+    /// computation as [`Mode::Control`], in closed form).
+    pub fn laws(&self) -> (Vec<OutputLaw>, Vec<CombinedLaw>) {
+        let laws = self
+            .laws
+            .iter()
+            .map(|l| {
+                let safety: Vec<&Expr> = l.safety.iter().map(|&i| &self.safety[i].expr).collect();
+                let functional: Vec<&Expr> = l
+                    .functional
+                    .iter()
+                    .map(|&i| &self.functional[i].expr)
+                    .collect();
+                output_law(&self.names[l.slot], &safety, &functional)
+            })
+            .collect();
+        let combined = self
+            .combined
+            .iter()
+            .map(|c| {
+                let outputs = &self.safety[c.constraint].outputs;
+                let priority = outputs
+                    .iter()
+                    .find(|&&o| o != c.other)
+                    .copied()
+                    .unwrap_or(c.other);
+                CombinedLaw {
+                    constraint: self.safety[c.constraint].name.clone(),
+                    expr: self.safety[c.constraint].expr.clone(),
+                    priority: self.names[priority].clone(),
+                    other: self.names[c.other].clone(),
+                }
+            })
+            .collect();
+        (laws, combined)
+    }
+
+    /// The estimate intervals it computes, per part: the part's actuators, and
+    /// for each estimated state of them, the intervals of the time since they
+    /// took it.
+    pub fn intervals(&self) -> Vec<PartIntervals> {
+        self.clocks
+            .iter()
+            .map(|c| PartIntervals {
+                actuators: c.actuators.iter().map(|&a| self.names[a].clone()).collect(),
+                states: c
+                    .groups
+                    .iter()
+                    .map(|(values, iv)| {
+                        (
+                            values.clone(),
+                            iv.iter()
+                                .map(|&(slot, from, to)| Interval {
+                                    name: self.names[slot].clone(),
+                                    from,
+                                    to,
+                                })
+                                .collect(),
+                        )
+                    })
+                    .collect(),
+            })
+            .collect()
+    }
+
+    /// For each part whose actuator or element faults send it to the fallback:
+    /// the flags that do, and its actuators.
+    pub fn fallback_parts(&self) -> Vec<(Vec<String>, Vec<String>)> {
+        self.part_fallback
+            .iter()
+            .filter(|(flags, _)| !flags.is_empty())
+            .map(|(flags, acts)| {
+                (
+                    flags.iter().map(|&f| self.names[f].clone()).collect(),
+                    acts.iter().map(|&a| self.names[a].clone()).collect(),
+                )
+            })
+            .collect()
+    }
+
+    /// Names of the filter's variables, by slot (signals first).
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+}
+
+/// `op` evaluated with `slot` at 0 and at 1.
+fn cofactors(op: &Op, cur: &mut [bool], prev: &[bool], slot: usize) -> (bool, bool) {
+    let old = cur[slot];
+    cur[slot] = false;
+    let zero = op.eval(cur, prev);
+    cur[slot] = true;
+    let one = op.eval(cur, prev);
+    cur[slot] = old;
+    (zero, one)
+}
+
+/// Whether `op` reads `!slot` (under an odd number of negations).
+fn reads_negated(op: &Op, slot: usize) -> bool {
+    fn go(op: &Op, slot: usize, negated: bool) -> bool {
+        match op {
+            Op::Var(i) | Op::Rise(i) | Op::Fall(i) => *i == slot && negated,
+            Op::Not(e) => go(e, slot, !negated),
+            Op::And(es) | Op::Or(es) => es.iter().any(|e| go(e, slot, negated)),
+            Op::Const(_) | Op::Prev(_) => false,
+        }
+    }
+    go(op, slot, false)
+}
+
+/// The outputs an expression reads, as slots.
+fn outputs_of(e: &Expr, index: &HashMap<String, usize>, actuators: &[usize]) -> Vec<usize> {
+    let mut out: Vec<usize> = e
+        .names()
+        .into_iter()
+        .filter_map(|n| index.get(n).copied())
+        .filter(|i| actuators.contains(i))
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+fn compile(e: &Expr, index: &HashMap<String, usize>) -> Result<Op, String> {
+    let slot = |n: &str| {
+        index
+            .get(n)
+            .copied()
+            .ok_or_else(|| format!("the filter has no variable '{n}'"))
+    };
+    Ok(match e {
+        Expr::Const(b) => Op::Const(*b),
+        Expr::Var(n) => Op::Var(slot(n)?),
+        Expr::Prev(n) => Op::Prev(slot(n)?),
+        Expr::Rise(n) => Op::Rise(slot(n)?),
+        Expr::Fall(n) => Op::Fall(slot(n)?),
+        Expr::Not(e) => Op::Not(Box::new(compile(e, index)?)),
+        Expr::And(es) => Op::And(
+            es.iter()
+                .map(|e| compile(e, index))
+                .collect::<Result<_, _>>()?,
+        ),
+        Expr::Or(es) => Op::Or(
+            es.iter()
+                .map(|e| compile(e, index))
+                .collect::<Result<_, _>>()?,
+        ),
+    })
+}
+
+/// The filter's variables as a [`crate::eval::Scan`], for reports.
+struct Slots<'a>(&'a Filter);
+
+impl crate::eval::Scan for Slots<'_> {
+    fn value(&self, name: &str) -> bool {
+        self.0.index.get(name).is_some_and(|&i| self.0.cur[i])
+    }
+    fn previous(&self, name: &str) -> bool {
+        self.0.index.get(name).is_some_and(|&i| self.0.prev[i])
+    }
+}

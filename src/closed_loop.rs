@@ -1,0 +1,273 @@
+//! The closed loop of the demo: in each scan of the simulated sorting line, safe
+//! control by constraints computes the orders through the (rewritten) safety
+//! filter, the diagnosers read the scan, and their verdicts raise the flags the
+//! filter reads from the next scan on.
+
+use datasets::inject::Injection;
+use datasets::sim::{Controller, Damage, MemorySink, Physics, ScanSink, SimConfig};
+use datasets::sorting::{SortingConfig, SortingLine};
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
+use diagnoser::model::Model;
+use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time};
+use filter_coupling::filter::{Coupling, Filter, Mode};
+use rand_chacha::ChaCha8Rng;
+
+/// No delivery for this long while boxes wait counts as halted, beyond it.
+pub const HALT_AFTER: Time = 60 * diagnoser::SECOND;
+
+/// One closed-loop run.
+#[derive(Debug, Clone)]
+pub struct LoopRun {
+    /// How the filter uses the flags.
+    pub coupling: Coupling,
+    /// Seed of the simulation.
+    pub seed: u64,
+    /// Simulated time.
+    pub duration: Time,
+    /// The fault, if any.
+    pub fault: Option<Injection>,
+    /// Where throughput, damage and halts start being counted (the onset).
+    pub from: Time,
+}
+
+/// What a closed-loop run measured, from [`LoopRun::from`] on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoopOutcome {
+    /// Boxes delivered on both sides.
+    pub delivered: u64,
+    /// Physical harm.
+    pub damage: Vec<Damage>,
+    /// First verdict other than normal, if any.
+    pub detected: Option<Time>,
+    /// Time spent with boxes on the line and no delivery for over a minute,
+    /// beyond that minute.
+    pub halted: Time,
+    /// Scans in which the filter overrode the computed orders.
+    pub fallback_scans: u64,
+    /// The flags raised by the end.
+    pub flags: Vec<String>,
+}
+
+/// The PLC of the closed loop: filter-based safe control plus the diagnosers.
+struct CoupledPlc {
+    filter: Filter,
+    /// The diagnosers (none while recording a run to learn from).
+    diagnoser: Option<PlantDiagnoser>,
+    /// Values last given to the diagnosers.
+    last: Vec<bool>,
+    started: bool,
+    /// Per part: its latest flags and suspects.
+    part_flags: Vec<(String, Vec<String>, Vec<String>)>,
+    /// Flags raised so far (never lowered) and suspects now.
+    raised: Vec<String>,
+    suspects: Vec<String>,
+    detected: Option<Time>,
+    from: Time,
+    fallback_scans: u64,
+    verdicts: Vec<Verdict>,
+}
+
+impl CoupledPlc {
+    fn apply_verdicts(&mut self) {
+        if self.verdicts.is_empty() {
+            return;
+        }
+        for v in self.verdicts.drain(..) {
+            if v.part == diagnoser::diagnosis::fusion::PLANT_VIEW {
+                continue;
+            }
+            if self.detected.is_none() && v.t >= self.from {
+                self.detected = Some(v.t);
+            }
+            match self.part_flags.iter_mut().find(|p| p.0 == v.part) {
+                Some(p) => {
+                    p.1 = v.flags;
+                    p.2 = v.suspects;
+                }
+                None => self.part_flags.push((v.part, v.flags, v.suspects)),
+            }
+        }
+        for (_, flags, _) in &self.part_flags {
+            for f in flags {
+                if !self.raised.contains(f) {
+                    self.raised.push(f.clone());
+                    self.filter.set(f, true);
+                }
+            }
+        }
+        let now: Vec<String> = self
+            .part_flags
+            .iter()
+            .flat_map(|(_, _, s)| s.iter().map(|p| format!("suspect_{p}")))
+            .collect();
+        for s in &self.suspects {
+            if !now.contains(s) {
+                self.filter.set(s, false);
+            }
+        }
+        for s in &now {
+            self.filter.set(s, true);
+        }
+        self.suspects = now;
+    }
+}
+
+impl Controller for CoupledPlc {
+    fn scan(&mut self, t: Time, io: &mut [bool]) {
+        self.apply_verdicts();
+        let outcome = self.filter.scan(t, io, Mode::Control);
+        if outcome.fallback || !outcome.parts_in_fallback.is_empty() {
+            self.fallback_scans += u64::from(t >= self.from);
+        }
+        let Some(diagnoser) = self.diagnoser.as_mut() else {
+            return;
+        };
+        let verdicts = &mut self.verdicts;
+        let mut out = |v: Verdict| verdicts.push(v);
+        if !self.started {
+            diagnoser.start(t, io);
+            self.last = io.to_vec();
+            self.started = true;
+        } else {
+            for (i, (&new, old)) in io.iter().zip(self.last.iter_mut()).enumerate() {
+                if new != *old {
+                    *old = new;
+                    diagnoser.push(
+                        Event {
+                            t,
+                            signal: SignalId(i as u32),
+                            value: new,
+                        },
+                        &mut out,
+                    );
+                }
+            }
+            diagnoser.advance_to(t, &mut out);
+        }
+    }
+}
+
+/// The sorting line, watched for deliveries and halts.
+struct Watched {
+    line: SortingLine,
+    from: Time,
+    delivered_before: u64,
+    last_progress: Time,
+    halted: Time,
+    last_t: Option<Time>,
+}
+
+impl Physics for Watched {
+    fn plant(&self) -> &Plant {
+        self.line.plant()
+    }
+    fn plant_toml(&self) -> &'static str {
+        self.line.plant_toml()
+    }
+    fn advance(&mut self, t: Time, act: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>) {
+        let before = self.line.delivered();
+        self.line.advance(t, act, rng, damage);
+        if t <= self.from {
+            self.delivered_before = self.line.delivered();
+            self.last_progress = t;
+        } else if self.line.delivered() > before || !self.line.occupied() {
+            self.last_progress = t;
+        } else if let Some(last) = self.last_t
+            && t - self.last_progress > HALT_AFTER
+        {
+            self.halted += t - last.max(self.last_progress + HALT_AFTER);
+        }
+        self.last_t = Some(t);
+    }
+    fn read_sensors(&self, io: &mut [bool]) {
+        self.line.read_sensors(io);
+    }
+    fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String> {
+        self.line.inject_element_fault(template)
+    }
+    fn counters(&self) -> Vec<(String, u64)> {
+        self.line.counters()
+    }
+}
+
+struct NoSink;
+
+impl ScanSink for NoSink {
+    fn scan(&mut self, _t: Time, _values: &[bool]) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// Records a fault-free run of the sorting line under safe control by
+/// constraints (no coupling), to learn a model from.
+pub fn record(plant: &Plant, seed: u64, duration: Time) -> Result<MemorySink, String> {
+    let run = LoopRun {
+        coupling: Coupling::None,
+        seed,
+        duration,
+        fault: None,
+        from: 0,
+    };
+    let mut sink = MemorySink::default();
+    simulate(plant, None, &run, &mut sink)?;
+    Ok(sink)
+}
+
+/// Runs the sorting line in closed loop with `model`'s diagnosers and estimates.
+pub fn run(plant: &Plant, model: &Model, run: &LoopRun) -> Result<LoopOutcome, String> {
+    simulate(plant, Some(model), run, &mut NoSink)
+}
+
+fn simulate(
+    plant: &Plant,
+    model: Option<&Model>,
+    run: &LoopRun,
+    sink: &mut impl ScanSink,
+) -> Result<LoopOutcome, String> {
+    let filter = Filter::new(plant, model, run.coupling)?;
+    let diagnoser = match model {
+        Some(m) => Some(PlantDiagnoser::new(plant, m, &DiagnoserOptions::default())?),
+        None => None,
+    };
+    let mut plc = CoupledPlc {
+        filter,
+        diagnoser,
+        last: Vec::new(),
+        started: false,
+        part_flags: Vec::new(),
+        raised: Vec::new(),
+        suspects: Vec::new(),
+        detected: None,
+        from: run.from,
+        fallback_scans: 0,
+        verdicts: Vec::new(),
+    };
+    let mut physics = Watched {
+        line: SortingLine::new(SortingConfig::default()),
+        from: run.from,
+        delivered_before: 0,
+        last_progress: 0,
+        halted: 0,
+        last_t: None,
+    };
+    let config = SimConfig {
+        duration: run.duration,
+        scan_period: plant.scan_period,
+        seed: run.seed,
+        faults: run.fault.iter().cloned().collect(),
+    };
+    let report = datasets::sim::run(&mut physics, &mut plc, &config, sink, |_| {})
+        .map_err(|e| format!("simulation failed: {e}"))?;
+    Ok(LoopOutcome {
+        delivered: physics.line.delivered() - physics.delivered_before,
+        damage: report
+            .damage
+            .into_iter()
+            .filter(|d| d.t >= run.from)
+            .collect(),
+        detected: plc.detected,
+        halted: physics.halted,
+        fallback_scans: plc.fallback_scans,
+        flags: plc.raised,
+    })
+}
