@@ -681,7 +681,15 @@ impl Checker<'_> {
                 format!("bad expression: {}", err.message),
             )
         })?;
-        check_expr_names(&e, known, signals).map_err(|m| self.at(text.span(), field, m))?;
+        check_expr_names(&e, known, signals).map_err(|name| {
+            // Point at the name itself in the expression.
+            let offset = word_offset(text.get_ref(), &name).unwrap_or(0);
+            self.at(
+                start + offset..start + offset,
+                field,
+                format!("unknown name '{name}'"),
+            )
+        })?;
         Ok(e)
     }
 
@@ -754,6 +762,16 @@ fn check_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// Byte offset of the first whole-word occurrence of `word` in `text`.
+fn word_offset(text: &str, word: &str) -> Option<usize> {
+    let is_name = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    text.match_indices(word).map(|(i, _)| i).find(|&i| {
+        !text[..i].chars().next_back().is_some_and(is_name)
+            && !text[i + word.len()..].chars().next().is_some_and(is_name)
+    })
+}
+
+/// The first name `e` reads that is neither known nor a signal, as `Err`.
 fn check_expr_names(
     e: &Expr,
     known: &HashSet<String>,
@@ -766,14 +784,14 @@ fn check_expr_names(
                 if known.contains(n) {
                     Ok(())
                 } else {
-                    Err(format!("unknown name '{n}'"))
+                    Err(n.clone())
                 }
             }
             Expr::Rise(n) | Expr::Fall(n) | Expr::Prev(n) => {
                 if known.contains(n) || signals.id(n).is_some() {
                     Ok(())
                 } else {
-                    Err(format!("unknown name '{n}'"))
+                    Err(n.clone())
                 }
             }
             Expr::Not(x) => walk(x, known, signals),
