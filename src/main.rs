@@ -26,9 +26,11 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// The whole chain on the embedded sorting plant: learn, inject each fault, diagnose.
+    /// The whole chain on the embedded sorting plant, in closed loop: safe control,
+    /// diagnosers and the rewritten filter through each turntable fault.
     Demo(demo::DemoArgs),
-    /// The safety filter: constraints rewritten with fault flags and estimates.
+    /// The safety filter: constraints rewritten with fault flags and estimates,
+    /// Structured Text, and logs checked against the constraints.
     Filter(filter::FilterArgs),
     /// Learn one timed model per plant part from logs of normal operation.
     Learn(learn::LearnArgs),

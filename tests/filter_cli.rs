@@ -63,3 +63,46 @@ fn suspects_and_bad_flags() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.contains("def_C9"), "{err}");
 }
+
+fn check(extra: &[&str]) -> Output {
+    let mut args = vec!["filter", "check", "--plant"];
+    let plant = path("datasets/plants/sorting.toml");
+    args.push(&plant);
+    args.extend_from_slice(extra);
+    gardefou(&args)
+}
+
+#[test]
+fn check_replays_logs_against_the_constraints() {
+    // The printed control law never violates a constraint in normal operation.
+    let normal = path("datasets/data/sorting/normal/events.csv");
+    let o = check(&[&normal]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).contains("0 times"));
+    // With C4 stuck at 1, the control keeps rotating with "the turntable at
+    // loading" and no box aboard: CSs13 holds on the recorded orders.
+    let f2 = path("datasets/data/sorting/F2/events.csv");
+    let o = check(&[&f2]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    assert_eq!(lines[0]["constraint"], "CSs13");
+    assert_eq!(lines[0]["literals"], serde_json::json!(["C4", "!C6", "A4"]));
+    assert!(lines[0]["t"].as_f64().is_some_and(|t| t >= 602_000.0));
+}
+
+#[test]
+fn check_refuses_flags_it_cannot_use() {
+    let f2 = path("datasets/data/sorting/F2/events.csv");
+    let o = check(&["--flags", "def_C4", &f2]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--flags needs --model"));
+}

@@ -3,7 +3,10 @@
 //! A scan of the filter:
 //! 1. reads the sensors, and the orders written in the previous scan;
 //! 2. updates the estimate intervals (`I1`, `I2`, …: the time since each part's
-//!    actuators took their present values) and the observers;
+//!    actuators took their present values) and the observers. Observers come
+//!    before this scan's orders: one that reads an output sees the order of the
+//!    previous scan, and no edge of it. Flags and internal variables set
+//!    between scans count from this scan on, with edges like signals;
 //! 3. computes the orders, either by seed 001's safe control by constraints
 //!    ([`Mode::Control`]: `S'k = !f0k & g1k | f1k`, then the combined constraints)
 //!    or by taking the control program's orders as they are ([`Mode::Filter`]);
@@ -203,6 +206,10 @@ pub struct Filter {
     signals: usize,
     /// Per signal slot: whether it is a sensor (read from `io`).
     sensor: Vec<bool>,
+    /// Per slot: whether the caller sets it (flags, internal variables).
+    external: Vec<bool>,
+    /// What the caller set, for the next scan.
+    next: Vec<bool>,
     actuators: Vec<usize>,
     cur: Vec<bool>,
     prev: Vec<bool>,
@@ -523,11 +530,21 @@ impl Filter {
             cur[index[&o.name]] = o.init;
         }
         let sensor = (0..signals).map(|i| !actuators.contains(&i)).collect();
+        let mut external = vec![false; n];
+        for v in &plant.variables {
+            external[index[v]] = true;
+        }
+        for p in &plant.partitions {
+            external[index[&p.flag()]] = true;
+            external[index[&format!("suspect_{}", p.name)]] = true;
+        }
         Ok(Filter {
             names,
             index,
             signals,
             sensor,
+            next: vec![false; n],
+            external,
             actuators,
             prev: cur.clone(),
             cur,
@@ -568,10 +585,12 @@ impl Filter {
 
     /// Raises or lowers a flag (`def_C4`, `suspect_P`) or sets an internal
     /// variable; false if the filter has no such name.
+    /// The value counts from the next scan on, so that its edges and
+    /// `prev` read like those of a signal.
     pub fn set(&mut self, name: &str, value: bool) -> bool {
         match self.index.get(name) {
-            Some(&i) if i >= self.signals => {
-                self.cur[i] = value;
+            Some(&i) if self.external[i] => {
+                self.next[i] = value;
                 true
             }
             _ => false,
@@ -584,13 +603,41 @@ impl Filter {
         self.index.get(name).map(|&i| self.cur[i])
     }
 
-    /// Runs one scan at `t`. `io` is indexed like the plant's signals: sensors as
-    /// read now, actuators as proposed by the control program ([`Mode::Filter`])
-    /// or ignored ([`Mode::Control`]). The orders are written back into `io`.
-    pub fn scan(&mut self, t: Time, io: &mut [bool], mode: Mode) -> ScanOutcome {
-        let mut outcome = ScanOutcome::default();
-        // What was current is now previous; then this scan's sensors.
+    /// Checks a recorded scan against the safety constraints: `io` holds the
+    /// sensors and the orders as the PLC wrote them. Nothing is changed; the
+    /// violated constraints come back with their literals.
+    pub fn check(&mut self, t: Time, io: &[bool]) -> Vec<Violation> {
+        self.begin(t, io);
+        for &a in &self.actuators {
+            self.cur[a] = io[a];
+        }
+        let violated = self.violations();
+        self.note_orders(t);
+        violated
+    }
+
+    fn violations(&self) -> Vec<Violation> {
+        self.safety
+            .iter()
+            .filter(|c| c.op.eval(&self.cur, &self.prev))
+            .map(|c| Violation {
+                constraint: c.name.clone(),
+                literals: crate::eval::true_literals(&c.expr, &Slots(self)),
+            })
+            .collect()
+    }
+
+    /// The start of every scan: shift to the previous values, read the
+    /// sensors, update the intervals and observers.
+    fn begin(&mut self, t: Time, io: &[bool]) {
+        // What was current is now previous; then this scan's sensors, flags
+        // and variables.
         self.prev.copy_from_slice(&self.cur);
+        for (i, &v) in self.next.iter().enumerate() {
+            if self.external[i] {
+                self.cur[i] = v;
+            }
+        }
         for (i, &v) in io.iter().enumerate().take(self.signals) {
             if self.sensor[i] {
                 self.cur[i] = v;
@@ -600,12 +647,20 @@ impl Filter {
             // No edge at the first scan: the orders in `io` stand for those
             // of the scan before.
             let n = self.signals.min(io.len());
-            self.prev[..n].copy_from_slice(&io[..n]);
             self.cur[..n].copy_from_slice(&io[..n]);
+            self.prev.copy_from_slice(&self.cur);
             self.started = true;
         }
         self.update_intervals(t);
         self.update_observers();
+    }
+
+    /// Runs one scan at `t`. `io` is indexed like the plant's signals: sensors as
+    /// read now, actuators as proposed by the control program ([`Mode::Filter`])
+    /// or ignored ([`Mode::Control`]). The orders are written back into `io`.
+    pub fn scan(&mut self, t: Time, io: &mut [bool], mode: Mode) -> ScanOutcome {
+        let mut outcome = ScanOutcome::default();
+        self.begin(t, io);
 
         // Orders: proposed, or computed from the constraints.
         self.orders.clear();
@@ -620,14 +675,7 @@ impl Filter {
         for (k, &a) in self.actuators.iter().enumerate() {
             self.cur[a] = self.orders[k];
         }
-        for c in &self.safety {
-            if c.op.eval(&self.cur, &self.prev) {
-                outcome.violated.push(Violation {
-                    constraint: c.name.clone(),
-                    literals: crate::eval::true_literals(&c.expr, &Slots(self)),
-                });
-            }
-        }
+        outcome.violated = self.violations();
         if !outcome.violated.is_empty() {
             outcome.fallback = true;
             for k in 0..self.laws.len() {
