@@ -13,6 +13,7 @@ mod demo;
 mod diagnose;
 mod filter;
 mod learn;
+mod monitor;
 mod simulate;
 
 /// Decentralised timed fault diagnosis for PLC-controlled plants, coupled to the
@@ -32,6 +33,8 @@ enum Command {
     /// The safety filter: constraints rewritten with fault flags and estimates,
     /// Structured Text, and logs checked against the constraints.
     Filter(filter::FilterArgs),
+    /// Diagnose online: events from a live source, deadlines fired on time.
+    Monitor(monitor::MonitorArgs),
     /// Learn one timed model per plant part from logs of normal operation.
     Learn(learn::LearnArgs),
     /// Replay logs through every part's diagnoser: verdict changes as JSON lines.
@@ -99,6 +102,7 @@ fn main() -> ExitCode {
         Command::Check(args) => check::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Filter(args) => filter::run(args),
+        Command::Monitor(args) => monitor::run(args),
     };
     match result {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,

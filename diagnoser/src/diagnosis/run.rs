@@ -252,6 +252,12 @@ impl PlantDiagnoser {
         }
     }
 
+    /// The earliest pending deadline of any part, if any: when a live monitor
+    /// must call [`Self::advance_to`] even if no event comes.
+    pub fn next_deadline(&self) -> Option<Time> {
+        self.earliest
+    }
+
     /// The time the diagnosers have reached: the last scan, or the last
     /// [`Self::advance_to`].
     pub fn now(&self) -> Time {
