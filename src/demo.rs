@@ -86,12 +86,12 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
 
     // Every run of the experiment, with its onset drawn once per scenario.
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
-    let mut jobs: Vec<(Option<usize>, String, &'static str, LoopRun)> = Vec::new();
-    for (i, label) in SCENARIOS.iter().enumerate() {
+    let mut jobs: Vec<(String, &'static str, LoopRun)> = Vec::new();
+    for label in SCENARIOS {
         let onset = WARM_UP + rng.random_range(0..SPREAD / MS) * MS;
         let fault = Injection::resolve(
             &FaultSpec {
-                what: (*label).to_string(),
+                what: label.to_string(),
                 onset,
             },
             &plant,
@@ -99,7 +99,6 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         .map_err(internal)?;
         // The same run without the fault, counted over the same window.
         jobs.push((
-            Some(i),
             String::new(),
             "",
             LoopRun {
@@ -112,7 +111,6 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         ));
         for (mode, coupling) in MODES {
             jobs.push((
-                None,
                 format!("{label} {}", fault.template),
                 mode,
                 LoopRun {
@@ -129,10 +127,11 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
 
     let mut rows = Vec::new();
     let mut nominal = 0.0;
-    for ((baseline, scenario, mode, job), outcome) in jobs.iter().zip(&outcomes) {
+    for ((scenario, mode, job), outcome) in jobs.iter().zip(&outcomes) {
         let hours = (DURATION - job.from) as f64 / (3600 * SECOND) as f64;
         let per_hour = outcome.delivered as f64 / hours;
-        if baseline.is_some() {
+        // The fault-free reference of the scenarios that follow.
+        if job.fault.is_none() {
             nominal = per_hour;
             continue;
         }
@@ -181,7 +180,7 @@ fn round1(x: f64) -> f64 {
 fn run_all(
     plant: &diagnoser::Plant,
     model: &diagnoser::model::Model,
-    jobs: &[(Option<usize>, String, &'static str, LoopRun)],
+    jobs: &[(String, &'static str, LoopRun)],
 ) -> Result<Vec<LoopOutcome>, String> {
     let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
     let next = std::sync::atomic::AtomicUsize::new(0);
@@ -193,7 +192,7 @@ fn run_all(
                 loop {
                     let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     let Some(job) = jobs.get(i) else { break };
-                    let r = closed_loop::run(plant, model, &job.3);
+                    let r = closed_loop::run(plant, model, &job.2);
                     if let Ok(mut all) = results.lock() {
                         all[i] = Some(r);
                     }

@@ -7,8 +7,8 @@ use std::path::PathBuf;
 
 use clap::{Args, Subcommand, ValueEnum};
 use diagnoser::model::Model;
-use diagnoser::{FaultTemplate, Plant, TimeFormat, TimeUnit};
-use filter_coupling::filter::{Coupling, Filter, Mode};
+use diagnoser::{Plant, TimeFormat, TimeUnit};
+use filter_coupling::filter::{Coupling, Filter, Mode, sensor_partition};
 use filter_coupling::rewrite::{Estimate, RewriteOptions, rewrite};
 use filter_coupling::st::{StOptions, generate};
 
@@ -131,29 +131,13 @@ pub fn run(args: FilterArgs) -> Result<(), Failure> {
     }
 }
 
-/// The partition holding a sensor fault of `sensor`, else the sensor's name.
-fn partition_of(plant: &Plant, sensor: &str) -> String {
-    plant
-        .faults
-        .iter()
-        .filter(|f| {
-            matches!(
-                &f.template,
-                FaultTemplate::Stuck0(s) | FaultTemplate::Stuck1(s)
-                | FaultTemplate::UnexpectedRise(s) | FaultTemplate::UnexpectedFall(s) if s == sensor
-            )
-        })
-        .find_map(|f| plant.partition_of(&f.label))
-        .map_or_else(|| sensor.to_string(), |p| p.name.clone())
-}
-
 fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
     let plant = Plant::from_path(&args.plant).map_err(bad)?;
     let model = Model::from_path(&args.model).map_err(bad)?;
     let mut estimates = Vec::new();
     for part in &model.parts {
         for e in &part.sensor_estimates {
-            let partition = partition_of(&plant, &e.sensor);
+            let partition = sensor_partition(&plant, &e.sensor);
             let wanted = args.flags.is_empty()
                 || args.flags.iter().any(|f| *f == format!("def_{partition}"));
             if wanted {

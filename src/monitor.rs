@@ -357,21 +357,8 @@ async fn read_stdin(plant: Plant, unit: TimeUnit, tx: mpsc::Sender<Item>) {
         let line = match next {
             // Quiet: the scan (or the initial values) is complete.
             Err(_) => {
-                if !sent && let Some(t0) = first {
-                    sent = true;
-                    if tx
-                        .send(Item::Start(t0, std::mem::take(&mut initial)))
-                        .await
-                        .is_err()
-                    {
-                        return;
-                    }
-                }
-                if !scan.is_empty()
-                    && tx
-                        .send(Item::Scan(std::mem::take(&mut scan)))
-                        .await
-                        .is_err()
+                if !send_start(&tx, first, &mut sent, &mut initial).await
+                    || !send_scan(&tx, &mut scan).await
                 {
                     return;
                 }
@@ -406,22 +393,9 @@ async fn read_stdin(plant: Plant, unit: TimeUnit, tx: mpsc::Sender<Item>) {
                 initial[e.signal.index()] = e.value;
             }
             Some(t0) if !sent && e.t == t0 => initial[e.signal.index()] = e.value,
-            Some(t0) => {
-                if !sent {
-                    sent = true;
-                    if tx
-                        .send(Item::Start(t0, std::mem::take(&mut initial)))
-                        .await
-                        .is_err()
-                    {
-                        return;
-                    }
-                }
-                if scan.first().is_some_and(|f| f.t != e.t)
-                    && tx
-                        .send(Item::Scan(std::mem::take(&mut scan)))
-                        .await
-                        .is_err()
+            Some(_) => {
+                if !send_start(&tx, first, &mut sent, &mut initial).await
+                    || scan.first().is_some_and(|f| f.t != e.t) && !send_scan(&tx, &mut scan).await
                 {
                     return;
                 }
@@ -429,12 +403,32 @@ async fn read_stdin(plant: Plant, unit: TimeUnit, tx: mpsc::Sender<Item>) {
             }
         }
     }
-    if !sent && let Some(t0) = first {
-        let _ = tx.send(Item::Start(t0, initial)).await;
+    if send_start(&tx, first, &mut sent, &mut initial).await {
+        send_scan(&tx, &mut scan).await;
     }
-    if !scan.is_empty() {
-        let _ = tx.send(Item::Scan(scan)).await;
+}
+
+/// Sends the initial values once; false if the monitor has gone.
+async fn send_start(
+    tx: &mpsc::Sender<Item>,
+    first: Option<Time>,
+    sent: &mut bool,
+    initial: &mut Vec<bool>,
+) -> bool {
+    match first {
+        Some(t0) if !*sent => {
+            *sent = true;
+            tx.send(Item::Start(t0, std::mem::take(initial)))
+                .await
+                .is_ok()
+        }
+        _ => true,
     }
+}
+
+/// Sends the scan gathered so far, if any; false if the monitor has gone.
+async fn send_scan(tx: &mpsc::Sender<Item>, scan: &mut Vec<Event>) -> bool {
+    scan.is_empty() || tx.send(Item::Scan(std::mem::take(scan))).await.is_ok()
 }
 
 /// How long standard input may stay quiet before the lines read so far count

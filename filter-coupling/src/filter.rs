@@ -169,6 +169,8 @@ struct LawSlots {
     safety: Vec<usize>,
     /// Functional constraints reading it (indices into `functional`).
     functional: Vec<usize>,
+    /// Whether one of them asks for 1 (reads `!Sk`).
+    asks_for_one: bool,
 }
 
 /// A combined constraint: when it holds, `other` is set to 0.
@@ -220,6 +222,8 @@ pub struct Filter {
     laws: Vec<LawSlots>,
     combined: Vec<Combined>,
     /// Per part: the flags of its actuator and element partitions, and its actuators.
+    /// Per part: the flags of its actuator and element partitions, and its
+    /// outputs (indices into `laws`).
     part_fallback: Vec<(Vec<usize>, Vec<usize>)>,
     estimates: Vec<Estimate>,
     coupling: Coupling,
@@ -414,8 +418,6 @@ impl Filter {
         let options = RewriteOptions {
             use_suspects: coupling == Coupling::FlagsAndSuspects,
         };
-        let compile =
-            |e: &Expr, index: &HashMap<String, usize>| -> Result<Op, String> { compile(e, index) };
         let mut safety = Vec::new();
         for c in &plant.constraints {
             let expr = rewrite(&c.expr, &estimates, options);
@@ -481,6 +483,7 @@ impl Filter {
             for k in &c.outputs {
                 if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
                     law.functional.push(i);
+                    law.asks_for_one |= reads_negated(&c.op, *k);
                 }
             }
         }
@@ -522,7 +525,12 @@ impl Filter {
                     }
                 }
             }
-            part_fallback.push((flags, part.actuators.iter().map(|a| a.index()).collect()));
+            let outputs = part
+                .actuators
+                .iter()
+                .filter_map(|a| actuators.iter().position(|&x| x == a.index()))
+                .collect();
+            part_fallback.push((flags, outputs));
         }
         let n = names.len();
         let mut cur = vec![false; n];
@@ -683,13 +691,11 @@ impl Filter {
             }
         } else {
             for p in 0..self.part_fallback.len() {
-                let (flags, acts) = &self.part_fallback[p];
-                if flags.iter().any(|&f| self.cur[f]) {
+                if self.part_fallback[p].0.iter().any(|&f| self.cur[f]) {
                     outcome.parts_in_fallback.push(p);
-                    for a in acts.clone() {
-                        if let Some(k) = self.laws.iter().position(|l| l.slot == a) {
-                            self.orders[k] = self.forced(k).1;
-                        }
+                    for j in 0..self.part_fallback[p].1.len() {
+                        let k = self.part_fallback[p].1[j];
+                        self.orders[k] = self.forced(k).1;
                     }
                 }
             }
@@ -764,19 +770,16 @@ impl Filter {
     fn safe_order(&mut self, k: usize, proposed: bool) -> bool {
         let (f0, f1) = self.forced(k);
         let slot = self.laws[k].slot;
-        let (mut g1, mut g0, mut any_g1) = (false, false, false);
+        let (mut g1, mut g0) = (false, false);
         let law = &self.laws[k];
         for &i in &law.functional {
-            let op = &self.functional[i].op;
-            let (zero, one) = cofactors(op, &mut self.cur, &self.prev, slot);
+            let (zero, one) = cofactors(&self.functional[i].op, &mut self.cur, &self.prev, slot);
             g1 |= zero && !one;
             g0 |= one && !zero;
-            // Whether this constraint ever asks for 1: it reads `!Sk`.
-            any_g1 |= reads_negated(op, slot);
         }
-        let wanted = if any_g1 {
+        let wanted = if law.asks_for_one {
             g1 && !g0
-        } else if self.laws[k].functional.is_empty() {
+        } else if law.functional.is_empty() {
             proposed
         } else {
             !g0
@@ -881,7 +884,9 @@ impl Filter {
             .map(|(flags, acts)| {
                 (
                     flags.iter().map(|&f| self.names[f].clone()).collect(),
-                    acts.iter().map(|&a| self.names[a].clone()).collect(),
+                    acts.iter()
+                        .map(|&k| self.names[self.laws[k].slot].clone())
+                        .collect(),
                 )
             })
             .collect()
