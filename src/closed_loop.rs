@@ -12,6 +12,8 @@ use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time};
 use filter_coupling::filter::{Coupling, Filter, Mode};
 use rand_chacha::ChaCha8Rng;
 
+use crate::flags::FlagBoard;
+
 /// No delivery for this long while boxes wait counts as halted, beyond it.
 pub const HALT_AFTER: Time = 60 * diagnoser::SECOND;
 
@@ -56,11 +58,9 @@ struct CoupledPlc {
     /// Values last given to the diagnosers.
     last: Vec<bool>,
     started: bool,
-    /// Per part: its latest flags and suspects.
-    part_flags: Vec<(String, Vec<String>, Vec<String>)>,
-    /// Flags raised so far (never lowered) and suspects now.
-    raised: Vec<String>,
-    suspects: Vec<String>,
+    /// Flags set by the verdicts, and those the filter has been given.
+    board: FlagBoard,
+    set: Vec<String>,
     detected: Option<Time>,
     from: Time,
     fallback_scans: u64,
@@ -79,36 +79,26 @@ impl CoupledPlc {
             if self.detected.is_none() && v.t >= self.from {
                 self.detected = Some(v.t);
             }
-            match self.part_flags.iter_mut().find(|p| p.0 == v.part) {
-                Some(p) => {
-                    p.1 = v.flags;
-                    p.2 = v.suspects;
-                }
-                None => self.part_flags.push((v.part, v.flags, v.suspects)),
-            }
-        }
-        for (_, flags, _) in &self.part_flags {
-            for f in flags {
-                if !self.raised.contains(f) {
-                    self.raised.push(f.clone());
-                    self.filter.set(f, true);
-                }
-            }
+            self.board.update(&v);
         }
         let now: Vec<String> = self
-            .part_flags
+            .board
+            .raised()
             .iter()
-            .flat_map(|(_, _, s)| s.iter().map(|p| format!("suspect_{p}")))
+            .chain(self.board.suspects())
+            .cloned()
             .collect();
-        for s in &self.suspects {
-            if !now.contains(s) {
-                self.filter.set(s, false);
+        for f in &self.set {
+            if !now.contains(f) {
+                self.filter.set(f, false);
             }
         }
-        for s in &now {
-            self.filter.set(s, true);
+        for f in &now {
+            if !self.set.contains(f) {
+                self.filter.set(f, true);
+            }
         }
-        self.suspects = now;
+        self.set = now;
     }
 }
 
@@ -234,9 +224,8 @@ fn simulate(
         diagnoser,
         last: Vec::new(),
         started: false,
-        part_flags: Vec::new(),
-        raised: Vec::new(),
-        suspects: Vec::new(),
+        board: FlagBoard::default(),
+        set: Vec::new(),
         detected: None,
         from: run.from,
         fallback_scans: 0,
@@ -268,6 +257,6 @@ fn simulate(
         detected: plc.detected,
         halted: physics.halted,
         fallback_scans: plc.fallback_scans,
-        flags: plc.raised,
+        flags: plc.board.raised().to_vec(),
     })
 }

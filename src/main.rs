@@ -13,6 +13,7 @@ mod demo;
 mod diagnose;
 mod filter;
 mod learn;
+mod flags;
 mod monitor;
 mod simulate;
 

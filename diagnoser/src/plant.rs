@@ -47,6 +47,9 @@ pub struct Plant {
     pub functional: Vec<Constraint>,
     /// Where each signal sits in the CAN process image (for `candump` logs).
     pub can: Vec<CanBit>,
+    /// Modbus addresses written in `[modbus]`, overriding the default map (see
+    /// [`Plant::modbus_map`]).
+    pub modbus: Vec<ModbusEntry>,
 }
 
 /// One signal's place in a CANopen (CiA 401) process image: bit `bit` of the
@@ -60,6 +63,61 @@ pub struct CanBit {
     pub cob_id: u32,
     /// Bit index in the payload, from 0 (byte 0, LSB) to 63.
     pub bit: u8,
+}
+
+/// A Modbus data table a signal or flag can live in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ModbusTable {
+    /// Read-only bits (function 2): the PLC's inputs.
+    DiscreteInput,
+    /// Read-write bits (functions 1, 5, 15): the PLC's outputs and flags.
+    Coil,
+}
+
+impl fmt::Display for ModbusTable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            ModbusTable::DiscreteInput => "discrete input",
+            ModbusTable::Coil => "coil",
+        })
+    }
+}
+
+/// One address written in `[modbus]`: `C4 = { discrete_input = 4 }`,
+/// `A4 = { coil = 0 }` or `def_C4 = { coil = 100 }`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ModbusEntry {
+    /// A signal, or a flag `def_<partition>` / `suspect_<partition>`.
+    pub name: String,
+    /// Where it lives.
+    pub table: ModbusTable,
+    /// Its address in that table (0-based, as on the wire).
+    pub address: u16,
+}
+
+/// Where every signal and flag of a plant lives on a Modbus TCP server.
+///
+/// The default needs no configuration: sensors are discrete inputs 0, 1, … in
+/// plant-file order, actuators are coils 0, 1, …, and flags are coils from
+/// [`ModbusMap::FLAGS_FROM`] on, in partition order, every `def_` flag first and
+/// then every `suspect_` flag. `[modbus]` entries override single addresses.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ModbusMap {
+    /// Each signal's table and address, indexed by [`SignalId`].
+    pub signals: Vec<(ModbusTable, u16)>,
+    /// Each flag's name and coil: every `def_` flag in partition order, then
+    /// every `suspect_` flag.
+    pub flags: Vec<(String, u16)>,
+}
+
+impl ModbusMap {
+    /// The first flag coil of the default map.
+    pub const FLAGS_FROM: u16 = 100;
+
+    /// The flag coil of `flag`, if the map has it.
+    pub fn flag(&self, flag: &str) -> Option<u16> {
+        self.flags.iter().find(|f| f.0 == flag).map(|f| f.1)
+    }
 }
 
 /// A part of the plant (PoP): some actuators, the sensors that follow them and
@@ -186,6 +244,49 @@ impl Plant {
             .find(|p| p.faults.iter().any(|f| f == label))
     }
 
+    /// The flags of the partitions, in the order of the default Modbus map:
+    /// every `def_<partition>`, then every `suspect_<partition>`.
+    pub fn flags(&self) -> Vec<String> {
+        let def = self.partitions.iter().map(Partition::flag);
+        let suspect = self.partitions.iter().map(|p| format!("suspect_{}", p.name));
+        def.chain(suspect).collect()
+    }
+
+    /// The Modbus register map: the default (see [`ModbusMap`]) with the
+    /// plant file's `[modbus]` entries applied. The plant file was checked when
+    /// parsed, so no two names share an address.
+    pub fn modbus_map(&self) -> ModbusMap {
+        let mut inputs = 0u16;
+        let mut coils = 0u16;
+        let mut signals: Vec<(ModbusTable, u16)> = self
+            .signals
+            .iter()
+            .map(|(_, s)| match s.kind {
+                SignalKind::Sensor => {
+                    inputs += 1;
+                    (ModbusTable::DiscreteInput, inputs - 1)
+                }
+                SignalKind::Actuator => {
+                    coils += 1;
+                    (ModbusTable::Coil, coils - 1)
+                }
+            })
+            .collect();
+        let mut flags: Vec<(String, u16)> = self
+            .flags()
+            .into_iter()
+            .zip(ModbusMap::FLAGS_FROM..)
+            .collect();
+        for e in &self.modbus {
+            if let Some(id) = self.signals.id(&e.name) {
+                signals[id.index()] = (e.table, e.address);
+            } else if let Some(f) = flags.iter_mut().find(|f| f.0 == e.name) {
+                f.1 = e.address;
+            }
+        }
+        ModbusMap { signals, flags }
+    }
+
     /// Names of all moving elements declared by parts.
     pub fn elements(&self) -> impl Iterator<Item = &str> {
         self.parts.iter().filter_map(|p| p.element.as_deref())
@@ -229,6 +330,15 @@ struct RawPlant {
     functional: Vec<RawConstraint>,
     #[serde(default, deserialize_with = "ordered")]
     can: Vec<(Spanned<String>, Spanned<RawCanBit>)>,
+    #[serde(default, deserialize_with = "ordered")]
+    modbus: Vec<(Spanned<String>, Spanned<RawModbus>)>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawModbus {
+    discrete_input: Option<u16>,
+    coil: Option<u16>,
 }
 
 #[derive(Deserialize)]
@@ -580,7 +690,7 @@ impl Checker<'_> {
             });
         }
 
-        Ok(Plant {
+        let mut plant = Plant {
             name: raw.name,
             scan_period,
             time_unit,
@@ -593,7 +703,89 @@ impl Checker<'_> {
             constraints,
             functional,
             can,
-        })
+            modbus: Vec::new(),
+        };
+        plant.modbus = self.modbus(raw.modbus, &plant)?;
+        Ok(plant)
+    }
+
+    /// Checks `[modbus]`: known names, one table each (flags in coils), and no
+    /// two names at one address once the defaults are filled in.
+    fn modbus(
+        &self,
+        raw: Vec<(Spanned<String>, Spanned<RawModbus>)>,
+        plant: &Plant,
+    ) -> Result<Vec<ModbusEntry>, PlantError> {
+        let flags = plant.flags();
+        let mut entries: Vec<ModbusEntry> = Vec::new();
+        let mut spans = Vec::new();
+        for (name, at) in raw {
+            let n = name.get_ref();
+            let signal = plant.signals.id(n);
+            if signal.is_none() && !flags.contains(n) {
+                return Err(self.at(
+                    name.span(),
+                    "modbus",
+                    format!("unknown signal or flag '{n}' (flags are def_<partition> and suspect_<partition>)"),
+                ));
+            }
+            let (table, address) = match (at.get_ref().discrete_input, at.get_ref().coil) {
+                (Some(a), None) => (ModbusTable::DiscreteInput, a),
+                (None, Some(a)) => (ModbusTable::Coil, a),
+                _ => {
+                    return Err(self.at(
+                        at.span(),
+                        "modbus",
+                        format!("'{n}' needs exactly one of discrete_input = N or coil = N"),
+                    ));
+                }
+            };
+            if signal.is_none() && table != ModbusTable::Coil {
+                return Err(self.at(
+                    at.span(),
+                    "modbus",
+                    format!("flag '{n}' must be a coil: the monitor writes it"),
+                ));
+            }
+            if entries.iter().any(|e| e.name == *n) {
+                return Err(self.at(name.span(), "modbus", format!("'{n}' mapped twice")));
+            }
+            entries.push(ModbusEntry {
+                name: n.clone(),
+                table,
+                address,
+            });
+            spans.push(name.span());
+        }
+        let mut with = plant.clone();
+        with.modbus = entries;
+        let map = with.modbus_map();
+        let mut taken: HashMap<(ModbusTable, u16), String> = HashMap::new();
+        let named = plant
+            .signals
+            .iter()
+            .map(|(_, s)| s.name.clone())
+            .zip(map.signals.iter().copied())
+            .chain(map.flags.iter().map(|(f, a)| (f.clone(), (ModbusTable::Coil, *a))));
+        for (name, place) in named {
+            if let Some(other) = taken.insert(place, name.clone()) {
+                // Point at whichever of the two the file wrote.
+                let span = with
+                    .modbus
+                    .iter()
+                    .position(|e| e.name == name || e.name == other)
+                    .map_or(0..0, |i| spans[i].clone());
+                return Err(self.at(
+                    span,
+                    "modbus",
+                    format!(
+                        "'{other}' and '{name}' are both at {} {}; give one of them another address",
+                        place.0, place.1
+                    ),
+                ));
+            }
+        }
+        Ok(with.modbus)
     }
 
     fn signal_list(

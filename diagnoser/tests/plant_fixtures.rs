@@ -123,3 +123,33 @@ fn without_faults_every_template_is_generated() {
     );
     assert_eq!(plant.signals.of_kind(SignalKind::Sensor).count(), 2);
 }
+
+#[test]
+fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
+    use diagnoser::plant::{ModbusMap, ModbusTable};
+    let plant = parse(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_modbus.toml"),
+    )
+    .expect("parses");
+    let map = plant.modbus_map();
+    let at = |name: &str| map.signals[plant.signals.id(name).expect("signal").index()];
+    // C4 keeps the default (the first sensor); C5 and A4 are moved.
+    assert_eq!(at("C4"), (ModbusTable::DiscreteInput, 0));
+    assert_eq!(at("C5"), (ModbusTable::DiscreteInput, 17));
+    assert_eq!(at("A4"), (ModbusTable::Coil, 8));
+    // Flags: def_ first, in partition order, then suspect_, from coil 100.
+    let names: Vec<&str> = map.flags.iter().map(|f| f.0.as_str()).collect();
+    let partitions: Vec<String> = plant.partitions.iter().map(|p| p.name.clone()).collect();
+    let expected: Vec<String> = partitions
+        .iter()
+        .map(|p| format!("def_{p}"))
+        .chain(partitions.iter().map(|p| format!("suspect_{p}")))
+        .collect();
+    assert_eq!(names, expected);
+    for (i, (name, coil)) in map.flags.iter().enumerate() {
+        let default = ModbusMap::FLAGS_FROM + i as u16;
+        let want = if name == "suspect_C4" { 200 } else { default };
+        assert_eq!(*coil, want, "{name}");
+    }
+    assert_eq!(map.flag("suspect_C4"), Some(200));
+}

@@ -1,0 +1,287 @@
+//! What the monitor knows now, shared with the HTTP endpoint: every part's
+//! latest verdict, the flags, counters and the label latency.
+
+use std::fmt::Write as _;
+use std::time::Duration;
+
+use diagnoser::diagnosis::Verdict;
+use diagnoser::{Plant, Time, TimeFormat};
+use serde::Serialize;
+
+/// Latencies are counted per microsecond up to this many; longer ones share
+/// the last bucket (and [`Latency::max`] keeps the exact worst).
+const FINE_US: usize = 100_000;
+
+/// Label latency: from the evidence (an event's arrival, a deadline's expiry)
+/// to the verdict line written. Kept per microsecond, so that percentiles are
+/// exact to the microsecond below 100 ms.
+#[derive(Debug, Clone)]
+pub struct Latency {
+    counts: Vec<u32>,
+    n: u64,
+    sum: Duration,
+    max: Duration,
+}
+
+impl Default for Latency {
+    fn default() -> Self {
+        Latency {
+            counts: vec![0; FINE_US + 1],
+            n: 0,
+            sum: Duration::ZERO,
+            max: Duration::ZERO,
+        }
+    }
+}
+
+impl Latency {
+    /// Counts one latency.
+    pub fn record(&mut self, d: Duration) {
+        let us = (d.as_micros() as usize).min(FINE_US);
+        self.counts[us] = self.counts[us].saturating_add(1);
+        self.n += 1;
+        self.sum += d;
+        self.max = self.max.max(d);
+    }
+
+    /// How many were counted.
+    pub fn count(&self) -> u64 {
+        self.n
+    }
+
+    /// The worst.
+    pub fn max(&self) -> Duration {
+        self.max
+    }
+
+    /// The `q` quantile (0 < q ≤ 1), rounded up to the microsecond; `None`
+    /// before the first count.
+    pub fn quantile(&self, q: f64) -> Option<Duration> {
+        if self.n == 0 {
+            return None;
+        }
+        let rank = ((q * self.n as f64).ceil() as u64).clamp(1, self.n);
+        let mut seen = 0u64;
+        for (us, &c) in self.counts.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= rank {
+                if us == FINE_US {
+                    return Some(self.max);
+                }
+                return Some(Duration::from_micros(us as u64 + 1));
+            }
+        }
+        Some(self.max)
+    }
+
+    /// How many took at most `us` microseconds.
+    fn at_most(&self, us: usize) -> u64 {
+        self.counts[..=us.min(FINE_US)]
+            .iter()
+            .map(|&c| u64::from(c))
+            .sum()
+    }
+}
+
+/// One part's latest verdict.
+#[derive(Debug, Clone, Serialize)]
+pub struct PartStatus {
+    /// The part (or `plant`, the fused view).
+    pub part: String,
+    /// `normal`, `certain` or `ambiguous` (as in the JSON lines).
+    pub verdict: serde_json::Value,
+    /// The candidate labels (`["N"]` when normal).
+    pub labels: Vec<String>,
+    /// `def_` flags raised by this part.
+    pub flags: Vec<String>,
+    /// Suspected partitions.
+    pub suspects: Vec<String>,
+    /// When the verdict last changed.
+    pub since: serde_json::Value,
+    /// What was observed, in words.
+    pub reason: String,
+}
+
+/// The monitor's state, as `/status` and `/metrics` show it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Status {
+    /// The plant's name.
+    pub plant: String,
+    /// The source, e.g. `modbus 127.0.0.1:502`.
+    pub source: String,
+    /// Whether the source sees the plant now.
+    pub connected: bool,
+    /// Time of the last scan read, if any.
+    pub t: Option<serde_json::Value>,
+    /// Every part's latest verdict, in plant order.
+    pub parts: Vec<PartStatus>,
+    /// `def_` flags raised (never lowered).
+    pub flags: Vec<String>,
+    /// `suspect_` flags up now.
+    pub suspects: Vec<String>,
+    /// Events read.
+    pub events: u64,
+    /// Verdict lines written.
+    pub verdict_changes: u64,
+    /// Warnings given.
+    pub warnings: u64,
+    /// Times the source lost the plant.
+    pub gaps: u64,
+    /// Flag images written to the PLC.
+    pub flag_writes: u64,
+    /// Label latency, 99th percentile, in microseconds.
+    pub latency_p99_us: Option<u64>,
+    #[serde(skip)]
+    pub latency: Latency,
+    #[serde(skip)]
+    pub time: TimeFormat,
+    #[serde(skip)]
+    all_flags: Vec<String>,
+}
+
+/// A time as the JSON lines write it: a number, or RFC 3339 text.
+pub fn time_value(t: Time, time: TimeFormat) -> serde_json::Value {
+    let text = time.format(t);
+    match time {
+        TimeFormat::Numeric(_) => serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text)),
+        TimeFormat::Rfc3339 => serde_json::Value::String(text),
+    }
+}
+
+impl Status {
+    /// The state before the first event: every part normal.
+    pub fn new(plant: &Plant, source: String, time: TimeFormat) -> Status {
+        Status {
+            plant: plant.name.clone(),
+            source,
+            connected: false,
+            t: None,
+            parts: plant
+                .parts
+                .iter()
+                .map(|p| PartStatus {
+                    part: p.name.clone(),
+                    verdict: serde_json::Value::String("normal".into()),
+                    labels: vec!["N".into()],
+                    flags: Vec::new(),
+                    suspects: Vec::new(),
+                    since: serde_json::Value::Null,
+                    reason: String::new(),
+                })
+                .collect(),
+            flags: Vec::new(),
+            suspects: Vec::new(),
+            events: 0,
+            verdict_changes: 0,
+            warnings: 0,
+            gaps: 0,
+            flag_writes: 0,
+            latency_p99_us: None,
+            latency: Latency::default(),
+            time,
+            all_flags: plant.flags(),
+        }
+    }
+
+    /// Takes in one verdict line.
+    pub fn verdict(&mut self, v: &Verdict) {
+        self.verdict_changes += 1;
+        let status = PartStatus {
+            part: v.part.clone(),
+            verdict: serde_json::to_value(v.verdict).unwrap_or_default(),
+            labels: v.labels.clone(),
+            flags: v.flags.clone(),
+            suspects: v.suspects.clone(),
+            since: time_value(v.t, self.time),
+            reason: v.reason.clone(),
+        };
+        match self.parts.iter_mut().find(|p| p.part == v.part) {
+            Some(p) => *p = status,
+            None => self.parts.push(status),
+        }
+    }
+
+    /// The `/status` body.
+    pub fn json(&self) -> String {
+        let mut s = self.clone();
+        s.latency_p99_us = self.latency.quantile(0.99).map(|d| d.as_micros() as u64);
+        serde_json::to_string_pretty(&s).unwrap_or_else(|_| "{}".into())
+    }
+
+    /// The `/metrics` body, in the Prometheus text format.
+    pub fn metrics(&self) -> String {
+        let mut m = String::new();
+        let mut counter = |name: &str, help: &str, v: u64| {
+            let _ = writeln!(m, "# HELP gardefou_{name} {help}");
+            let _ = writeln!(m, "# TYPE gardefou_{name} counter");
+            let _ = writeln!(m, "gardefou_{name} {v}");
+        };
+        counter("events_total", "Events read from the source.", self.events);
+        counter("verdict_changes_total", "Verdict lines written.", self.verdict_changes);
+        counter("warnings_total", "Warnings given.", self.warnings);
+        counter("gaps_total", "Times the source lost the plant.", self.gaps);
+        counter("flag_writes_total", "Flag images written to the PLC.", self.flag_writes);
+        let _ = writeln!(m, "# HELP gardefou_connected Whether the source sees the plant.");
+        let _ = writeln!(m, "# TYPE gardefou_connected gauge");
+        let _ = writeln!(m, "gardefou_connected {}", u8::from(self.connected));
+        let _ = writeln!(m, "# HELP gardefou_flag Flags the PLC's filter reads (1: up).");
+        let _ = writeln!(m, "# TYPE gardefou_flag gauge");
+        for f in &self.all_flags {
+            let up = self.flags.contains(f) || self.suspects.contains(f);
+            let _ = writeln!(m, "gardefou_flag{{flag=\"{f}\"}} {}", u8::from(up));
+        }
+        let _ = writeln!(m, "# HELP gardefou_part_certain Whether a part's verdict is a certain fault.");
+        let _ = writeln!(m, "# TYPE gardefou_part_certain gauge");
+        for p in &self.parts {
+            let certain = p.verdict.as_str() == Some("certain");
+            let _ = writeln!(m, "gardefou_part_certain{{part=\"{}\"}} {}", p.part, u8::from(certain));
+        }
+        let _ = writeln!(
+            m,
+            "# HELP gardefou_label_latency_seconds From evidence (event or deadline) to verdict written."
+        );
+        let _ = writeln!(m, "# TYPE gardefou_label_latency_seconds histogram");
+        for us in [50, 100, 250, 500, 1000, 2500, 5000, 10_000, 50_000] {
+            let _ = writeln!(
+                m,
+                "gardefou_label_latency_seconds_bucket{{le=\"{}\"}} {}",
+                us as f64 / 1e6,
+                self.latency.at_most(us)
+            );
+        }
+        let _ = writeln!(
+            m,
+            "gardefou_label_latency_seconds_bucket{{le=\"+Inf\"}} {}",
+            self.latency.n
+        );
+        let _ = writeln!(m, "gardefou_label_latency_seconds_sum {}", self.latency.sum.as_secs_f64());
+        let _ = writeln!(m, "gardefou_label_latency_seconds_count {}", self.latency.n);
+        m
+    }
+
+    /// Takes in the flags now up.
+    pub fn set_flags(&mut self, raised: &[String], suspects: &[String]) {
+        raised.clone_into(&mut self.flags);
+        suspects.clone_into(&mut self.suspects);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantiles_are_exact_to_the_microsecond() {
+        let mut l = Latency::default();
+        for us in 1..=1000u64 {
+            l.record(Duration::from_nanos(us * 1000 - 500));
+        }
+        // 990 of 1000 took at most 990 µs (rounded up).
+        assert_eq!(l.quantile(0.99), Some(Duration::from_micros(990)));
+        assert_eq!(l.quantile(1.0), Some(Duration::from_micros(1000)));
+        l.record(Duration::from_secs(3));
+        assert_eq!(l.quantile(1.0), Some(Duration::from_secs(3)));
+        assert_eq!(l.max(), Duration::from_secs(3));
+        assert_eq!(l.at_most(100), 100);
+    }
+}
