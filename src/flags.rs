@@ -51,7 +51,8 @@ impl FlagBoard {
                 acc
             });
         if now != self.suspects {
-            changed |= now.len() != self.suspects.len() || now.iter().any(|s| !self.suspects.contains(s));
+            changed |=
+                now.len() != self.suspects.len() || now.iter().any(|s| !self.suspects.contains(s));
             self.suspects = now;
         }
         changed

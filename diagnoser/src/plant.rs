@@ -248,7 +248,10 @@ impl Plant {
     /// every `def_<partition>`, then every `suspect_<partition>`.
     pub fn flags(&self) -> Vec<String> {
         let def = self.partitions.iter().map(Partition::flag);
-        let suspect = self.partitions.iter().map(|p| format!("suspect_{}", p.name));
+        let suspect = self
+            .partitions
+            .iter()
+            .map(|p| format!("suspect_{}", p.name));
         def.chain(suspect).collect()
     }
 
@@ -766,7 +769,11 @@ impl Checker<'_> {
             .iter()
             .map(|(_, s)| s.name.clone())
             .zip(map.signals.iter().copied())
-            .chain(map.flags.iter().map(|(f, a)| (f.clone(), (ModbusTable::Coil, *a))));
+            .chain(
+                map.flags
+                    .iter()
+                    .map(|(f, a)| (f.clone(), (ModbusTable::Coil, *a))),
+            );
         for (name, place) in named {
             if let Some(other) = taken.insert(place, name.clone()) {
                 // Point at whichever of the two the file wrote.

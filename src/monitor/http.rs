@@ -30,12 +30,7 @@ pub async fn serve(addr: SocketAddr, status: Arc<Mutex<Status>>) -> Result<(), F
             "/metrics",
             get(move || {
                 let body = status.lock().map(|s| s.metrics()).unwrap_or_default();
-                async move {
-                    (
-                        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
-                        body,
-                    )
-                }
+                async move { ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], body) }
             }),
         );
     tokio::spawn(async move {

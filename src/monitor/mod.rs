@@ -136,7 +136,10 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
     runtime.block_on(async {
         let (source, name): (Box<dyn Source>, String) = if let Some(path) = args.replay.clone() {
             let name = format!("replay {}", path.display());
-            (Box::new(source::Replay::open(path, args.format, unit, &plant)?), name)
+            (
+                Box::new(source::Replay::open(path, args.format, unit, &plant)?),
+                name,
+            )
         } else if let Some(addr) = &args.modbus {
             let s = modbus::ModbusSource::new(addr, args.unit_id, &plant, args.speed)?;
             (Box::new(s), format!("modbus {addr}"))
@@ -255,6 +258,8 @@ async fn monitor(
     };
     // A scan received, waiting for its time on the live clock (replay).
     let mut pending: Option<(Vec<Event>, Instant)> = None;
+    // The pending scan's time has come.
+    let mut ready = false;
     let mut terminate = terminate_signal()?;
     let stopped = loop {
         // The next deadline, as a wall instant.
@@ -287,40 +292,13 @@ async fn monitor(
             () = tokio::time::sleep_until(stop_at.unwrap_or(far)), if stop_at.is_some() => {
                 break Some("--duration reached");
             }
-            () = tokio::time::sleep_until(deadline.unwrap_or(far)), if deadline_first => {
+            () = wake_at(deadline.unwrap_or(far)), if deadline_first => {
                 if let (Some(d), Some(at)) = (diagnoser.next_deadline(), deadline) {
                     evidence.set(at);
                     diagnoser.advance_to(d, &mut emit);
                 }
             }
-            () = tokio::time::sleep_until(due.unwrap_or(far)), if due.is_some() => {
-                let Some((scan, arrived)) = pending.take() else { continue };
-                let Some(t) = scan.first().map(|e| e.t) else { continue };
-                evidence.set(if knows_ahead { due.unwrap_or(arrived) } else { arrived });
-                if let Some(a) = anchor
-                    && t > log_now(a)
-                {
-                    anchor = Some((t, Instant::now()));
-                }
-                // Deadlines before this scan fire first.
-                if let Some(l) = last_t
-                    && t > l
-                {
-                    diagnoser.advance_to(t - 1, &mut emit);
-                }
-                events += scan.len() as u64;
-                let n = scan.len() as u64;
-                for e in scan {
-                    diagnoser.push(e, &mut emit);
-                }
-                diagnoser.advance_to(t, &mut emit);
-                last_t = Some(t);
-                let shown = time_value_of(t, time_format);
-                with_status(&mut |s| {
-                    s.events += n;
-                    s.t = Some(shown.clone());
-                });
-            }
+            () = wake_at(due.unwrap_or(far)), if due.is_some() => ready = true,
             item = rx.recv(), if pending.is_none() => {
                 let Some(item) = item else { break None };
                 match item {
@@ -362,6 +340,8 @@ async fn monitor(
                             );
                         } else if !scan.is_empty() {
                             pending = Some((scan, Instant::now()));
+                            // A live scan is due as soon as it arrives.
+                            ready = !knows_ahead;
                         }
                     }
                     Item::Lost(t, why) => {
@@ -385,10 +365,50 @@ async fn monitor(
                             s.gaps += 1;
                         });
                     }
+                    Item::FlagsWritten(up) => {
+                        if !up.is_empty() {
+                            eprintln!("monitor: flags written to the PLC: {}", up.join(" "));
+                        }
+                        with_status(&mut |s| s.flag_writes += 1);
+                    }
                     Item::Warning(w) => warn(w, &mut warnings),
                     Item::Fatal(f) => return Err(f),
                 }
             }
+        }
+        if ready
+            && let Some((scan, arrived)) = pending.take()
+            && let Some(t) = scan.first().map(|e| e.t)
+        {
+            ready = false;
+            evidence.set(if knows_ahead {
+                due.unwrap_or(arrived)
+            } else {
+                arrived
+            });
+            if let Some(a) = anchor
+                && t > log_now(a)
+            {
+                anchor = Some((t, Instant::now()));
+            }
+            // Deadlines before this scan fire first.
+            if let Some(l) = last_t
+                && t > l
+            {
+                diagnoser.advance_to(t - 1, &mut emit);
+            }
+            let n = scan.len() as u64;
+            events += n;
+            for e in scan {
+                diagnoser.push(e, &mut emit);
+            }
+            diagnoser.advance_to(t, &mut emit);
+            last_t = Some(t);
+            let shown = time_value_of(t, time_format);
+            with_status(&mut |s| {
+                s.events += n;
+                s.t = Some(shown.clone());
+            });
         }
         let error = writer.borrow_mut().error.take();
         if let Some(e) = error {
@@ -445,6 +465,24 @@ async fn monitor(
         );
     }
     Ok(())
+}
+
+/// How close to a wake-up the monitor stops sleeping and polls instead: the
+/// runtime's timers have a resolution of a millisecond, too coarse for labels
+/// due within one.
+const SPIN: Duration = Duration::from_millis(2);
+
+/// Waits until `at`, to the microsecond: a timer for most of the wait, then
+/// yields to the runtime (so that events keep being read) until the instant.
+async fn wake_at(at: Instant) {
+    if let Some(early) = at.checked_sub(SPIN)
+        && early > Instant::now()
+    {
+        tokio::time::sleep_until(early).await;
+    }
+    while Instant::now() < at {
+        tokio::task::yield_now().await;
+    }
 }
 
 fn time_value_of(t: Time, time: TimeFormat) -> serde_json::Value {
@@ -504,4 +542,3 @@ fn readable(v: &Verdict, time: TimeFormat) -> String {
         v.reason
     )
 }
-

@@ -25,6 +25,8 @@ pub enum Item {
     /// deadline may fire until the next [`Item::Start`], since an event could
     /// be happening unseen.
     Lost(Time, String),
+    /// Flag coils were written to the PLC; these are the flags written up.
+    FlagsWritten(Vec<String>),
     /// A problem that does not stop the monitor.
     Warning(String),
     /// A problem that does.
@@ -85,11 +87,6 @@ impl LiveClock {
     /// The source's time now.
     pub fn now(&self) -> Time {
         self.origin_t + (self.origin.elapsed().as_nanos() as f64 * self.speed) as Time
-    }
-
-    /// The wall-clock duration of `d` of the source's time.
-    pub fn wall(&self, d: Time) -> Duration {
-        Duration::from_nanos((d.max(0) as f64 / self.speed) as u64)
     }
 }
 

@@ -44,11 +44,6 @@ impl Latency {
         self.max = self.max.max(d);
     }
 
-    /// How many were counted.
-    pub fn count(&self) -> u64 {
-        self.n
-    }
-
     /// The worst.
     pub fn max(&self) -> Duration {
         self.max
@@ -143,7 +138,9 @@ pub struct Status {
 pub fn time_value(t: Time, time: TimeFormat) -> serde_json::Value {
     let text = time.format(t);
     match time {
-        TimeFormat::Numeric(_) => serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text)),
+        TimeFormat::Numeric(_) => {
+            serde_json::from_str(&text).unwrap_or(serde_json::Value::String(text))
+        }
         TimeFormat::Rfc3339 => serde_json::Value::String(text),
     }
 }
@@ -217,24 +214,46 @@ impl Status {
             let _ = writeln!(m, "gardefou_{name} {v}");
         };
         counter("events_total", "Events read from the source.", self.events);
-        counter("verdict_changes_total", "Verdict lines written.", self.verdict_changes);
+        counter(
+            "verdict_changes_total",
+            "Verdict lines written.",
+            self.verdict_changes,
+        );
         counter("warnings_total", "Warnings given.", self.warnings);
         counter("gaps_total", "Times the source lost the plant.", self.gaps);
-        counter("flag_writes_total", "Flag images written to the PLC.", self.flag_writes);
-        let _ = writeln!(m, "# HELP gardefou_connected Whether the source sees the plant.");
+        counter(
+            "flag_writes_total",
+            "Flag images written to the PLC.",
+            self.flag_writes,
+        );
+        let _ = writeln!(
+            m,
+            "# HELP gardefou_connected Whether the source sees the plant."
+        );
         let _ = writeln!(m, "# TYPE gardefou_connected gauge");
         let _ = writeln!(m, "gardefou_connected {}", u8::from(self.connected));
-        let _ = writeln!(m, "# HELP gardefou_flag Flags the PLC's filter reads (1: up).");
+        let _ = writeln!(
+            m,
+            "# HELP gardefou_flag Flags the PLC's filter reads (1: up)."
+        );
         let _ = writeln!(m, "# TYPE gardefou_flag gauge");
         for f in &self.all_flags {
             let up = self.flags.contains(f) || self.suspects.contains(f);
             let _ = writeln!(m, "gardefou_flag{{flag=\"{f}\"}} {}", u8::from(up));
         }
-        let _ = writeln!(m, "# HELP gardefou_part_certain Whether a part's verdict is a certain fault.");
+        let _ = writeln!(
+            m,
+            "# HELP gardefou_part_certain Whether a part's verdict is a certain fault."
+        );
         let _ = writeln!(m, "# TYPE gardefou_part_certain gauge");
         for p in &self.parts {
             let certain = p.verdict.as_str() == Some("certain");
-            let _ = writeln!(m, "gardefou_part_certain{{part=\"{}\"}} {}", p.part, u8::from(certain));
+            let _ = writeln!(
+                m,
+                "gardefou_part_certain{{part=\"{}\"}} {}",
+                p.part,
+                u8::from(certain)
+            );
         }
         let _ = writeln!(
             m,
@@ -254,7 +273,11 @@ impl Status {
             "gardefou_label_latency_seconds_bucket{{le=\"+Inf\"}} {}",
             self.latency.n
         );
-        let _ = writeln!(m, "gardefou_label_latency_seconds_sum {}", self.latency.sum.as_secs_f64());
+        let _ = writeln!(
+            m,
+            "gardefou_label_latency_seconds_sum {}",
+            self.latency.sum.as_secs_f64()
+        );
         let _ = writeln!(m, "gardefou_label_latency_seconds_count {}", self.latency.n);
         m
     }
