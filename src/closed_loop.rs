@@ -51,7 +51,7 @@ pub struct LoopOutcome {
 }
 
 /// The PLC of the closed loop: filter-based safe control plus the diagnosers.
-struct CoupledPlc {
+pub(crate) struct CoupledPlc {
     filter: Filter,
     /// The diagnosers (none while recording a run to learn from).
     diagnoser: Option<PlantDiagnoser>,
@@ -68,6 +68,35 @@ struct CoupledPlc {
 }
 
 impl CoupledPlc {
+    /// Safe control by constraints (`Mode::Control`) through `filter`, with
+    /// `diagnoser`'s verdicts raising the filter's flags; fallback scans are
+    /// counted from `from` on.
+    pub(crate) fn new(filter: Filter, diagnoser: Option<PlantDiagnoser>, from: Time) -> CoupledPlc {
+        CoupledPlc {
+            filter,
+            diagnoser,
+            last: Vec::new(),
+            started: false,
+            board: FlagBoard::default(),
+            set: Vec::new(),
+            detected: None,
+            from,
+            fallback_scans: 0,
+            verdicts: Vec::new(),
+        }
+    }
+
+    /// The filter, to set flags from outside the diagnosers (e.g. a Modbus
+    /// client of the virtual PLC) between scans.
+    pub(crate) fn filter_mut(&mut self) -> &mut Filter {
+        &mut self.filter
+    }
+
+    /// Scans in which the filter overrode the computed orders, from `from` on.
+    pub(crate) fn fallback_scans(&self) -> u64 {
+        self.fallback_scans
+    }
+
     fn apply_verdicts(&mut self) {
         if self.verdicts.is_empty() {
             return;
@@ -138,13 +167,32 @@ impl Controller for CoupledPlc {
 }
 
 /// The sorting line, watched for deliveries and halts.
-struct Watched {
+pub(crate) struct Watched {
     line: SortingLine,
     from: Time,
     delivered_before: u64,
     last_progress: Time,
     halted: Time,
     last_t: Option<Time>,
+}
+
+impl Watched {
+    /// The default sorting line; deliveries and halts count from `from` on.
+    pub(crate) fn new(from: Time) -> Watched {
+        Watched {
+            line: SortingLine::new(SortingConfig::default()),
+            from,
+            delivered_before: 0,
+            last_progress: 0,
+            halted: 0,
+            last_t: None,
+        }
+    }
+
+    /// Boxes delivered on both sides since `from`.
+    pub(crate) fn delivered(&self) -> u64 {
+        self.line.delivered() - self.delivered_before
+    }
 }
 
 impl Physics for Watched {
@@ -219,26 +267,8 @@ fn simulate(
         Some(m) => Some(PlantDiagnoser::new(plant, m, &DiagnoserOptions::default())?),
         None => None,
     };
-    let mut plc = CoupledPlc {
-        filter,
-        diagnoser,
-        last: Vec::new(),
-        started: false,
-        board: FlagBoard::default(),
-        set: Vec::new(),
-        detected: None,
-        from: run.from,
-        fallback_scans: 0,
-        verdicts: Vec::new(),
-    };
-    let mut physics = Watched {
-        line: SortingLine::new(SortingConfig::default()),
-        from: run.from,
-        delivered_before: 0,
-        last_progress: 0,
-        halted: 0,
-        last_t: None,
-    };
+    let mut plc = CoupledPlc::new(filter, diagnoser, run.from);
+    let mut physics = Watched::new(run.from);
     let config = SimConfig {
         duration: run.duration,
         scan_period: plant.scan_period,
@@ -248,7 +278,7 @@ fn simulate(
     let report = datasets::sim::run(&mut physics, &mut plc, &config, sink, |_| {})
         .map_err(|e| format!("simulation failed: {e}"))?;
     Ok(LoopOutcome {
-        delivered: physics.line.delivered() - physics.delivered_before,
+        delivered: physics.delivered(),
         damage: report
             .damage
             .into_iter()

@@ -12,10 +12,11 @@ mod closed_loop;
 mod demo;
 mod diagnose;
 mod filter;
-mod learn;
 mod flags;
+mod learn;
 mod monitor;
 mod simulate;
+mod virtual_plc;
 
 /// Decentralised timed fault diagnosis for PLC-controlled plants, coupled to the
 /// PLC's safety filter.

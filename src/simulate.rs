@@ -1,5 +1,6 @@
 //! `gardefou simulate`: run a reference plant and write its logs, ground truth
-//! and damage record.
+//! and damage record, or run it in real time as a virtual PLC served over
+//! Modbus TCP (`--serve-modbus`, see [`crate::virtual_plc`]).
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -9,10 +10,14 @@ use datasets::inject::{FaultSpec, Injection};
 use datasets::output::{RunFiles, write_run};
 use datasets::sim::SimConfig;
 use datasets::{cylinders, sorting};
+use diagnoser::model::Model;
 use diagnoser::{MS, Time, time};
+use filter_coupling::filter::{Coupling, Filter};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::Failure;
+use crate::closed_loop::CoupledPlc;
+use crate::virtual_plc::{self, VirtualPlc};
 
 /// Which reference plant to simulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -21,6 +26,39 @@ pub enum PlantKind {
     Sorting,
     /// The four-cylinder rig of seed 001 §5.
     Cylinders,
+}
+
+/// Where the orders come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ControlKind {
+    /// The plant's control program (the sorting line: seed 001's eq. 68–74).
+    Program,
+    /// Safe control by constraints through the safety filter, flags unused
+    /// (sorting line only).
+    Constraints,
+}
+
+/// How the virtual PLC's filter uses the flags clients write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CouplingArg {
+    /// The constraints read the sensors as they are.
+    None,
+    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
+    /// element partition's part to its fallback.
+    Def,
+    /// As `def`, and `suspect_<partition>` also switches a sensor to its estimate.
+    #[value(name = "def+suspect")]
+    DefSuspect,
+}
+
+impl From<CouplingArg> for Coupling {
+    fn from(c: CouplingArg) -> Coupling {
+        match c {
+            CouplingArg::None => Coupling::None,
+            CouplingArg::Def => Coupling::Flags,
+            CouplingArg::DefSuspect => Coupling::FlagsAndSuspects,
+        }
+    }
 }
 
 /// Arguments of `gardefou simulate`.
@@ -52,6 +90,29 @@ pub struct SimulateArgs {
     /// plant.toml into (created if needed; files are replaced only on success).
     #[arg(long, default_value = "simulation")]
     out: PathBuf,
+    /// Where the orders come from [default: program; constraints with
+    /// --serve-modbus].
+    #[arg(long, value_enum)]
+    control: Option<ControlKind>,
+    /// Instead of writing files, run the sorting line as a virtual PLC serving
+    /// its sensors, orders and flags over Modbus TCP on ADDR (e.g.
+    /// 127.0.0.1:5020; port 0 picks a free port). Needs --realtime and --model.
+    #[arg(long, value_name = "ADDR", conflicts_with_all = ["out", "scans", "parquet"])]
+    serve_modbus: Option<String>,
+    /// Run in real time: one scan per scan period of wall time (divided by
+    /// --speed). Only with --serve-modbus.
+    #[arg(long)]
+    realtime: bool,
+    /// Simulated time per wall-clock time in real time, e.g. 10 [default: 1].
+    #[arg(long)]
+    speed: Option<f64>,
+    /// Learned model whose estimates the virtual PLC's filter uses (with
+    /// --serve-modbus).
+    #[arg(long, value_name = "M")]
+    model: Option<PathBuf>,
+    /// How the virtual PLC's filter uses the flags clients write [default: def].
+    #[arg(long, value_enum)]
+    coupling: Option<CouplingArg>,
 }
 
 /// Runs `gardefou simulate`.
@@ -81,6 +142,82 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
             args.duration as f64 / 1e9
         )));
     }
+    let control = args.control.unwrap_or(if args.serve_modbus.is_some() {
+        ControlKind::Constraints
+    } else {
+        ControlKind::Program
+    });
+    if control == ControlKind::Constraints && args.plant != PlantKind::Sorting {
+        let what = if args.serve_modbus.is_some() {
+            "--serve-modbus"
+        } else {
+            "--control constraints"
+        };
+        return Err(Failure::BadInput(format!(
+            "{what}: only the sorting plant is supported, not {}",
+            plant.name
+        )));
+    }
+    let Some(addr) = &args.serve_modbus else {
+        let virtual_only = [
+            ("--realtime", args.realtime),
+            ("--speed", args.speed.is_some()),
+            ("--model", args.model.is_some()),
+            ("--coupling", args.coupling.is_some()),
+        ];
+        if let Some((name, _)) = virtual_only.iter().find(|(_, given)| *given) {
+            return Err(Failure::BadInput(format!(
+                "{name} only goes with --serve-modbus ADDR (the virtual PLC)"
+            )));
+        }
+        return write_files(&args, &plant, control, scan_period, faults);
+    };
+    if !args.realtime {
+        return Err(Failure::BadInput(
+            "--serve-modbus needs --realtime: the virtual PLC scans in real time".into(),
+        ));
+    }
+    let Some(model_path) = &args.model else {
+        return Err(Failure::BadInput(
+            "--serve-modbus needs --model M: the filter's sensor estimates".into(),
+        ));
+    };
+    if control != ControlKind::Constraints {
+        return Err(Failure::BadInput(
+            "--serve-modbus runs safe control by constraints: --control program is not supported"
+                .into(),
+        ));
+    }
+    let speed = args.speed.unwrap_or(1.0);
+    if !(speed.is_finite() && (0.01..=10_000.0).contains(&speed)) {
+        return Err(Failure::BadInput(format!(
+            "bad --speed {speed}: expected a factor between 0.01 and 10000"
+        )));
+    }
+    let model = Model::from_path(model_path).map_err(|e| Failure::BadInput(e.to_string()))?;
+    let plc = VirtualPlc {
+        addr: addr.clone(),
+        speed,
+        model,
+        coupling: args.coupling.map_or(Coupling::Flags, Coupling::from),
+        config: SimConfig {
+            duration: args.duration,
+            scan_period,
+            seed: args.seed,
+            faults,
+        },
+    };
+    virtual_plc::run(&plant, plc)
+}
+
+/// Runs the plant to the end and writes its files into `--out`.
+fn write_files(
+    args: &SimulateArgs,
+    plant: &diagnoser::Plant,
+    control: ControlKind,
+    scan_period: Time,
+    faults: Vec<Injection>,
+) -> Result<(), Failure> {
     if args.out.exists() && !args.out.is_dir() {
         return Err(Failure::BadInput(format!(
             "--out {} exists and is not a directory",
@@ -112,8 +249,13 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
     let report = match args.plant {
         PlantKind::Sorting => {
             let mut line = sorting::SortingLine::new(sorting::SortingConfig::default());
-            let mut control = sorting::SynthesisedControl::new(line.ids());
-            write_run(&files, &mut line, &mut control, &config, progress)
+            if control == ControlKind::Constraints {
+                let mut control = constraint_control(plant)?;
+                write_run(&files, &mut line, &mut control, &config, progress)
+            } else {
+                let mut control = sorting::SynthesisedControl::new(line.ids());
+                write_run(&files, &mut line, &mut control, &config, progress)
+            }
         }
         PlantKind::Cylinders => {
             let mut rig = cylinders::CylinderRig::new(cylinders::CylinderConfig::default());
@@ -124,7 +266,7 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
     .map_err(|e| Failure::Io(format!("cannot write {}: {e}", args.out.display())))?;
     bar.finish_and_clear();
     if args.parquet {
-        write_parquet_archive(&args.out, &plant, args.duration)?;
+        write_parquet_archive(&args.out, plant, args.duration)?;
     }
 
     let counters: Vec<String> = report
@@ -142,6 +284,13 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Safe control by constraints through the safety filter, flags unused: the
+/// control under which the demo records the runs it learns from.
+fn constraint_control(plant: &diagnoser::Plant) -> Result<CoupledPlc, Failure> {
+    let filter = Filter::new(plant, None, Coupling::None).map_err(Failure::BadInput)?;
+    Ok(CoupledPlc::new(filter, None, 0))
 }
 
 /// Writes `intervals.parquet` beside a finished run, from its `events.csv`.
@@ -162,4 +311,34 @@ fn write_parquet_archive(
                 dir.join("intervals.parquet").display()
             ))
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use datasets::sim::{MemorySink, SimConfig};
+    use diagnoser::SECOND;
+
+    use super::*;
+
+    #[test]
+    fn constraint_control_is_the_demo_recording() {
+        let plant = sorting::plant();
+        let (seed, duration) = (5, 600 * SECOND);
+        let mut line = sorting::SortingLine::new(sorting::SortingConfig::default());
+        let Ok(mut control) = constraint_control(&plant) else {
+            panic!("the sorting plant has a filter");
+        };
+        let config = SimConfig {
+            duration,
+            scan_period: plant.scan_period,
+            seed,
+            faults: Vec::new(),
+        };
+        let mut ours = MemorySink::default();
+        datasets::sim::run(&mut line, &mut control, &config, &mut ours, |_| {}).expect("runs");
+        let demo = crate::closed_loop::record(&plant, seed, duration).expect("runs");
+        assert!(ours.events.len() > 100, "{} events", ours.events.len());
+        assert_eq!(ours.initial, demo.initial);
+        assert_eq!(ours.events, demo.events);
+    }
 }

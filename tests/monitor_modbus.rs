@@ -252,3 +252,94 @@ fn garbage_on_the_socket_is_a_lost_connection() {
     assert!(err.contains("reconnecting"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// The whole loop on loopback: the virtual PLC (safe control by constraints
+/// and the rewritable filter) runs the sorting line at 10 times real time with
+/// C4 stuck at 1 from 60 s; the monitor polls it, labels F2, writes `def_C4`;
+/// the PLC's filter switches C4 to its estimate and boxes keep being delivered
+/// without damage.
+#[test]
+fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let run = dir.path().join("run");
+    let model = dir.path().join("model.json");
+    let bin = env!("CARGO_BIN_EXE_gardefou");
+    let ok = |out: std::process::Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    // The model is learned from the same control: one fault-free hour.
+    ok(Command::new(bin)
+        .args(["simulate", "--control", "constraints", "--duration", "1h"])
+        .args(["--seed", "7", "--out"])
+        .arg(&run)
+        .output()
+        .expect("simulate runs"));
+    // Polling adds up to a poll of jitter to every edge: wider guards.
+    ok(Command::new(bin)
+        .args(["learn", "--margin", "30ms", "--plant"])
+        .arg(run.join("plant.toml"))
+        .arg(run.join("events.csv"))
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .expect("learn runs"));
+
+    let mut plc = Command::new(bin)
+        .args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
+        .args(["--speed", "10", "--duration", "3min", "--fault", "F2@60s"])
+        .arg("--model")
+        .arg(&model)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the virtual PLC starts");
+    let mut plc_err = BufReader::new(plc.stderr.take().expect("stderr"));
+    let mut first = String::new();
+    plc_err.read_line(&mut first).expect("a first line");
+    let port: u16 = first
+        .split("127.0.0.1:")
+        .nth(1)
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no port in: {first}"));
+
+    let mut mon = Lines::spawn(
+        Command::new(bin)
+            .args(["monitor", "--plant"])
+            .arg(run.join("plant.toml"))
+            .arg("--model")
+            .arg(&model)
+            .args(["--modbus", &format!("127.0.0.1:{port}")])
+            .args(["--speed", "10", "--duration", "16s"]),
+    );
+    let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(30));
+    let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
+    assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
+    assert!(certain.contains("def_C4"), "{certain}");
+    let status = mon.child.wait().expect("the monitor ends");
+    let err = mon.stderr();
+    assert!(status.success(), "{err}");
+    assert!(err.contains("flags written to the PLC: def_C4"), "{err}");
+
+    let out = plc.wait_with_output().expect("the virtual PLC ends");
+    let mut rest = String::new();
+    plc_err.read_to_string(&mut rest).expect("stderr");
+    assert!(out.status.success(), "{first}{rest}");
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON summary");
+    let flags = summary["flags"].as_array().expect("flags");
+    let def_c4 = flags
+        .iter()
+        .find(|f| f["flag"] == "def_C4")
+        .unwrap_or_else(|| panic!("the PLC never read def_C4: {summary}"));
+    // Raised after the fault began, and read by the PLC.
+    let at = def_c4["t_ms"].as_u64().expect("t_ms");
+    assert!((60_000..180_000).contains(&at), "{summary}");
+    assert_eq!(summary["damage"], serde_json::json!([]), "{summary}");
+    // About 2 min of line after the flag at ~300 boxes/h: some ten boxes.
+    let since = summary["delivered_since_flag"].as_u64().expect("a count");
+    assert!(since >= 4, "{summary}");
+}

@@ -98,47 +98,112 @@ pub fn run<P: Physics, C: Controller, S: ScanSink>(
     sink: &mut S,
     mut progress: impl FnMut(Time),
 ) -> std::io::Result<SimReport> {
-    let signals = physics.plant().signals.clone();
-    let n = signals.len();
-    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let mut injector = SensorInjector::new(&signals, &config.faults);
-    let mut pending_elements: Vec<&Injection> = config
-        .faults
-        .iter()
-        .filter(|f| f.template.signal().is_none())
-        .collect();
-    pending_elements.sort_by_key(|f| f.onset);
-    pending_elements.reverse();
+    let mut stepper = Stepper::new(physics.plant(), config);
+    while let Some((t, values)) = stepper.step(physics, controller)? {
+        sink.scan(t, values)?;
+        if stepper.scans() % 65_536 == 0 {
+            progress(t);
+        }
+    }
+    Ok(stepper.finish(physics))
+}
 
-    let mut io = vec![false; n];
-    let mut physical = vec![false; n];
-    let mut report = SimReport::default();
-    let scan = config.scan_period.max(1);
-    let mut t: Time = 0;
-    while t <= config.duration {
-        while pending_elements.last().is_some_and(|f| f.onset <= t) {
-            if let Some(f) = pending_elements.pop() {
+/// The scan loop one scan at a time, for callers that pace the scans
+/// themselves (a virtual PLC in real time) or act between them (flags set
+/// from outside). [`run`] is this loop run to the end.
+#[derive(Debug, Clone)]
+pub struct Stepper {
+    rng: ChaCha8Rng,
+    injector: SensorInjector,
+    /// Element faults not started yet, latest first.
+    pending_elements: Vec<Injection>,
+    /// What the PLC sees and orders in the current scan.
+    io: Vec<bool>,
+    /// The orders as the actuators carry them out (actuator faults applied).
+    physical: Vec<bool>,
+    report: SimReport,
+    scan: Time,
+    duration: Time,
+    t: Time,
+}
+
+impl Stepper {
+    /// A run of `plant` under `config`, before its first scan.
+    pub fn new(plant: &Plant, config: &SimConfig) -> Stepper {
+        let n = plant.signals.len();
+        let mut pending_elements: Vec<Injection> = config
+            .faults
+            .iter()
+            .filter(|f| f.template.signal().is_none())
+            .cloned()
+            .collect();
+        pending_elements.sort_by_key(|f| f.onset);
+        pending_elements.reverse();
+        Stepper {
+            rng: ChaCha8Rng::seed_from_u64(config.seed),
+            injector: SensorInjector::new(&plant.signals, &config.faults),
+            pending_elements,
+            io: vec![false; n],
+            physical: vec![false; n],
+            report: SimReport::default(),
+            scan: config.scan_period.max(1),
+            duration: config.duration,
+            t: 0,
+        }
+    }
+
+    /// Time of the next scan, or `None` once the run is over.
+    pub fn next_scan(&self) -> Option<Time> {
+        (self.t <= self.duration).then_some(self.t)
+    }
+
+    /// Runs the next scan: physics, sensor faults, controller, actuator faults.
+    /// Returns its time and what the PLC saw and ordered (indexed like the
+    /// plant's signals), or `None` once the run is over.
+    pub fn step<P: Physics, C: Controller>(
+        &mut self,
+        physics: &mut P,
+        controller: &mut C,
+    ) -> std::io::Result<Option<(Time, &[bool])>> {
+        let t = self.t;
+        if t > self.duration {
+            return Ok(None);
+        }
+        while self.pending_elements.last().is_some_and(|f| f.onset <= t) {
+            if let Some(f) = self.pending_elements.pop() {
                 // Checked by `Injection::resolve`; a refusal here is a simulator bug.
                 physics
                     .inject_element_fault(&f.template)
                     .map_err(std::io::Error::other)?;
             }
         }
-        physics.advance(t, &physical, &mut rng, &mut report.damage);
-        physics.read_sensors(&mut io);
-        injector.apply_sensors(t, &mut io);
-        controller.scan(t, &mut io);
-        physical.copy_from_slice(&io);
-        injector.apply_actuators(t, &mut physical);
-        sink.scan(t, &io)?;
-        report.scans += 1;
-        if report.scans % 65_536 == 0 {
-            progress(t);
-        }
-        t += scan;
+        physics.advance(t, &self.physical, &mut self.rng, &mut self.report.damage);
+        physics.read_sensors(&mut self.io);
+        self.injector.apply_sensors(t, &mut self.io);
+        controller.scan(t, &mut self.io);
+        self.physical.copy_from_slice(&self.io);
+        self.injector.apply_actuators(t, &mut self.physical);
+        self.report.scans += 1;
+        self.t += self.scan;
+        Ok(Some((t, &self.io)))
     }
-    report.counters = physics.counters();
-    Ok(report)
+
+    /// Scans run so far.
+    pub fn scans(&self) -> u64 {
+        self.report.scans
+    }
+
+    /// Physical harm so far, in time order.
+    pub fn damage(&self) -> &[Damage] {
+        &self.report.damage
+    }
+
+    /// Ends the run: its damage, scan count and `physics`' counters.
+    pub fn finish<P: Physics>(self, physics: &P) -> SimReport {
+        let mut report = self.report;
+        report.counters = physics.counters();
+        report
+    }
 }
 
 /// A sink that keeps every scan's changes in memory, for tests and small runs.

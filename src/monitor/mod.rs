@@ -196,7 +196,8 @@ async fn monitor(
     if let Some(addr) = args.http {
         http::serve(addr, status.clone()).await?;
     }
-    let (tx, mut rx) = mpsc::channel::<Item>(1024);
+    // Room for a replay to read well ahead of its pace.
+    let (tx, mut rx) = mpsc::channel::<Item>(16_384);
     let (flag_tx, flag_rx) = watch::channel(vec![false; plant.flags().len()]);
     source.spawn(Link {
         items: tx,
@@ -296,6 +297,7 @@ async fn monitor(
                 if let (Some(d), Some(at)) = (diagnoser.next_deadline(), deadline) {
                     evidence.set(at);
                     diagnoser.advance_to(d, &mut emit);
+                    with_status(&mut |s| s.evidence.record(at.elapsed()));
                 }
             }
             () = wake_at(due.unwrap_or(far)), if due.is_some() => ready = true,
@@ -405,9 +407,11 @@ async fn monitor(
             diagnoser.advance_to(t, &mut emit);
             last_t = Some(t);
             let shown = time_value_of(t, time_format);
+            let took = evidence.get().elapsed();
             with_status(&mut |s| {
                 s.events += n;
                 s.t = Some(shown.clone());
+                s.evidence.record(took);
             });
         }
         let error = writer.borrow_mut().error.take();
@@ -442,26 +446,23 @@ async fn monitor(
                 flags.push(f);
             }
         }
-        let (lines, latency) = status
+        let (lines, labels, evidence) = status
             .lock()
-            .map(|s| (s.verdict_changes, s.latency.clone()))
+            .map(|s| (s.verdict_changes, s.latency.clone(), s.evidence.clone()))
             .unwrap_or_default();
-        let p = |q: f64| {
-            latency
-                .quantile(q)
-                .map_or("-".to_string(), |d| format!("{} µs", d.as_micros()))
-        };
         eprintln!(
-            "monitor {}: {events} events, {lines} verdict changes, {warnings} warnings; flags: {}; label latency p50 {}, p99 {}, max {} µs",
+            "monitor {}: {events} events, {lines} verdict changes, {warnings} warnings; flags: {}",
             stopped.unwrap_or("source ended"),
             if flags.is_empty() {
                 "none".to_string()
             } else {
                 flags.join(" ")
             },
-            p(0.5),
-            p(0.99),
-            latency.max().as_micros()
+        );
+        eprintln!(
+            "monitor latency: labels {}; every scan and deadline {}",
+            labels.summary(),
+            evidence.summary()
         );
     }
     Ok(())

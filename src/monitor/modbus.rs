@@ -1,7 +1,7 @@
 //! `--modbus HOST:PORT`: a PLC polled over Modbus TCP, with the flags written
 //! back to it.
 //!
-//! Every scan period (divided by `--speed`) the source reads the discrete
+//! Twice per scan period (divided by `--speed`) the source reads the discrete
 //! inputs and coils of the plant file's register map ([`ModbusMap`]) and sends
 //! the changes as one scan, stamped with the time the poll started. The first
 //! poll after a connection gives every signal's value ([`Item::Start`]).
@@ -76,7 +76,10 @@ impl ModbusSource {
                 (f, coil)
             })
             .collect();
-        let period = Duration::from_nanos((plant.scan_period.max(1) as f64 / speed) as u64);
+        // Twice per scan: polls are not in step with the PLC's scans, and one
+        // poll per scan would now and then miss a scan and see the edges of two
+        // scans as one (an order and its sensor's answer at once).
+        let period = Duration::from_nanos((plant.scan_period.max(1) as f64 / speed / 2.0) as u64);
         Ok(ModbusSource {
             addr: addr.to_string(),
             unit,
@@ -90,7 +93,10 @@ impl ModbusSource {
     /// The runs of addresses to read, in at most [`MAX_BITS`] bits each.
     fn blocks(&self) -> Vec<Block> {
         let mut blocks = Vec::new();
-        for table in [ModbusTable::DiscreteInput, ModbusTable::Coil] {
+        // Coils (the orders) before discrete inputs (the sensors): a scan of
+        // the PLC between the two reads then shows a sensor's change before
+        // the order reacting to it, never an order before its cause.
+        for table in [ModbusTable::Coil, ModbusTable::DiscreteInput] {
             let addrs = self
                 .map
                 .signals

@@ -44,9 +44,16 @@ impl Latency {
         self.max = self.max.max(d);
     }
 
-    /// The worst.
-    pub fn max(&self) -> Duration {
-        self.max
+    /// `n, p50, p99, max` in microseconds, for people.
+    pub fn summary(&self) -> String {
+        let us = |d: Option<Duration>| d.map_or("-".into(), |d| d.as_micros().to_string());
+        format!(
+            "n {}, p50 {} µs, p99 {} µs, max {} µs",
+            self.n,
+            us(self.quantile(0.5)),
+            us(self.quantile(0.99)),
+            self.max.as_micros()
+        )
     }
 
     /// The `q` quantile (0 < q ≤ 1), rounded up to the microsecond; `None`
@@ -69,9 +76,9 @@ impl Latency {
         Some(self.max)
     }
 
-    /// How many took at most `us` microseconds.
+    /// How many took less than `us` microseconds (so at most `us`).
     fn at_most(&self, us: usize) -> u64 {
-        self.counts[..=us.min(FINE_US)]
+        self.counts[..us.min(FINE_US)]
             .iter()
             .map(|&c| u64::from(c))
             .sum()
@@ -128,6 +135,10 @@ pub struct Status {
     pub latency_p99_us: Option<u64>,
     #[serde(skip)]
     pub latency: Latency,
+    /// From evidence to the diagnosers done with it, for every scan and
+    /// deadline, whether or not a verdict changed: what a label would wait.
+    #[serde(skip)]
+    pub evidence: Latency,
     #[serde(skip)]
     pub time: TimeFormat,
     #[serde(skip)]
@@ -175,6 +186,7 @@ impl Status {
             flag_writes: 0,
             latency_p99_us: None,
             latency: Latency::default(),
+            evidence: Latency::default(),
             time,
             all_flags: plant.flags(),
         }
@@ -255,30 +267,18 @@ impl Status {
                 u8::from(certain)
             );
         }
-        let _ = writeln!(
-            m,
-            "# HELP gardefou_label_latency_seconds From evidence (event or deadline) to verdict written."
+        histogram(
+            &mut m,
+            "label_latency_seconds",
+            "From evidence (event or deadline) to verdict line written.",
+            &self.latency,
         );
-        let _ = writeln!(m, "# TYPE gardefou_label_latency_seconds histogram");
-        for us in [50, 100, 250, 500, 1000, 2500, 5000, 10_000, 50_000] {
-            let _ = writeln!(
-                m,
-                "gardefou_label_latency_seconds_bucket{{le=\"{}\"}} {}",
-                us as f64 / 1e6,
-                self.latency.at_most(us)
-            );
-        }
-        let _ = writeln!(
-            m,
-            "gardefou_label_latency_seconds_bucket{{le=\"+Inf\"}} {}",
-            self.latency.n
+        histogram(
+            &mut m,
+            "evidence_latency_seconds",
+            "From evidence (event or deadline) to the diagnosers done with it.",
+            &self.evidence,
         );
-        let _ = writeln!(
-            m,
-            "gardefou_label_latency_seconds_sum {}",
-            self.latency.sum.as_secs_f64()
-        );
-        let _ = writeln!(m, "gardefou_label_latency_seconds_count {}", self.latency.n);
         m
     }
 
@@ -287,6 +287,23 @@ impl Status {
         raised.clone_into(&mut self.flags);
         suspects.clone_into(&mut self.suspects);
     }
+}
+
+/// One latency histogram in the Prometheus text format.
+fn histogram(m: &mut String, name: &str, help: &str, l: &Latency) {
+    let _ = writeln!(m, "# HELP gardefou_{name} {help}");
+    let _ = writeln!(m, "# TYPE gardefou_{name} histogram");
+    for us in [50, 100, 250, 500, 1000, 2500, 5000, 10_000, 50_000] {
+        let _ = writeln!(
+            m,
+            "gardefou_{name}_bucket{{le=\"{}\"}} {}",
+            us as f64 / 1e6,
+            l.at_most(us)
+        );
+    }
+    let _ = writeln!(m, "gardefou_{name}_bucket{{le=\"+Inf\"}} {}", l.n);
+    let _ = writeln!(m, "gardefou_{name}_sum {}", l.sum.as_secs_f64());
+    let _ = writeln!(m, "gardefou_{name}_count {}", l.n);
 }
 
 #[cfg(test)]
@@ -304,7 +321,7 @@ mod tests {
         assert_eq!(l.quantile(1.0), Some(Duration::from_micros(1000)));
         l.record(Duration::from_secs(3));
         assert_eq!(l.quantile(1.0), Some(Duration::from_secs(3)));
-        assert_eq!(l.max(), Duration::from_secs(3));
+        assert_eq!(l.max, Duration::from_secs(3));
         assert_eq!(l.at_most(100), 100);
     }
 }
