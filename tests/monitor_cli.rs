@@ -138,3 +138,63 @@ fn a_source_is_required() {
         .expect("runs");
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// The shipped F2 run fed as JSON lines, with stale lines (timestamps going
+/// backwards) slipped in after the detection: each is a warning, and `def_C4`
+/// stays raised to the end. SIGTERM then ends the monitor cleanly, with its
+/// summary.
+#[test]
+fn out_of_order_events_lose_no_flag_and_sigterm_ends_cleanly() {
+    let log = std::fs::read_to_string(path("datasets/data/sorting/F2/events.csv")).expect("log");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args([
+            "monitor",
+            "--plant",
+            &path("datasets/data/sorting/F2/plant.toml"),
+        ])
+        .args(["--model", &path(MODEL), "--stdin"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starts");
+    let mut stdin = child.stdin.take().expect("stdin");
+    let mut text = String::new();
+    let mut stale = 0;
+    for row in log.lines().skip(1) {
+        let mut f = row.split(',');
+        let (Some(t), Some(s), Some(v)) = (f.next(), f.next(), f.next()) else {
+            continue;
+        };
+        let t: u64 = t.parse().expect("a time");
+        // Up to 610 s: F2 begins at 602 s and is certain by 606 s.
+        if t > 610_000 {
+            break;
+        }
+        text.push_str(&line(t, s, v.parse().expect("0 or 1")));
+        if t > 607_000 && stale < 3 {
+            text.push_str(&line(t - 5_000, "C4", 0));
+            stale += 1;
+        }
+    }
+    assert_eq!(stale, 3);
+    stdin.write_all(text.as_bytes()).expect("writes");
+    stdin.flush().expect("flushes");
+    // Standard input stays open: only the signal ends the monitor.
+    std::thread::sleep(Duration::from_millis(1500));
+    let pid = child.id().to_string();
+    let killed = Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .expect("kill runs");
+    assert!(killed.success());
+    let out = child.wait_with_output().expect("exits");
+    drop(stdin);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert_eq!(err.matches("time went backwards").count(), 3, "{err}");
+    assert!(err.contains("monitor terminated"), "{err}");
+    assert!(err.contains("flags: def_C4"), "{err}");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("\"labels\":[\"F2\"]"), "{text}");
+}

@@ -133,7 +133,7 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         .enable_all()
         .build()
         .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
-    runtime.block_on(async {
+    let result = runtime.block_on(async {
         let (source, name): (Box<dyn Source>, String) = if let Some(path) = args.replay.clone() {
             let name = format!("replay {}", path.display());
             (
@@ -154,7 +154,11 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
             (Box::new(s), "stdin".to_string())
         };
         monitor(&args, plant, diagnoser, source, name, output, terminal).await
-    })
+    });
+    // A read of standard input cannot be cancelled: waiting for it would keep
+    // a stopped monitor alive until the writer closes its end.
+    runtime.shutdown_background();
+    result
 }
 
 /// How the monitor writes verdict lines.
