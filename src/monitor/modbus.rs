@@ -19,7 +19,6 @@ use std::time::Duration;
 
 use diagnoser::plant::{ModbusMap, ModbusTable};
 use diagnoser::{Event, Plant, SignalId, TimeFormat};
-use tokio::time::MissedTickBehavior;
 use tokio_modbus::client::{Context, Reader, Writer};
 use tokio_modbus::{ExceptionCode, Slave};
 
@@ -156,7 +155,20 @@ impl Source for ModbusSource {
     }
 
     fn spawn(self: Box<Self>, link: Link) {
-        tokio::spawn(run(*self, link));
+        // Its own thread and runtime: the polls sleep on the operating
+        // system's clock (see `session`), which would stall the monitor.
+        std::thread::spawn(move || {
+            let runtime = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build();
+            match runtime {
+                Ok(rt) => rt.block_on(run(*self, link)),
+                Err(e) => {
+                    let f = Failure::Io(format!("cannot start the Modbus runtime: {e}"));
+                    let _ = link.items.blocking_send(Item::Fatal(f));
+                }
+            }
+        });
     }
 }
 
@@ -279,52 +291,60 @@ async fn session(
         return trouble(t);
     }
     let mut values: Option<Vec<bool>> = None;
-    let mut tick = tokio::time::interval(source.period);
-    tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
+    // Polls are paced by the operating system's clock on this source's own
+    // thread: the runtime's timers tick by the millisecond, which at a high
+    // `--speed` would now and then skip a poll and merge two scans' edges.
+    let mut next = std::time::Instant::now();
     loop {
-        tokio::select! {
-            biased;
-            changed = link.flags.changed() => {
-                if changed.is_err() {
-                    return Ended::Gone;
-                }
+        match link.flags.has_changed() {
+            Err(_) => return Ended::Gone,
+            Ok(true) => {
                 if let Err(t) = write_flags(source, ctx, link, &mut written).await {
                     return trouble(t);
                 }
             }
-            _ = tick.tick() => {
-                let t = clock.now();
-                let read = match poll(source, blocks, n, ctx).await {
-                    Ok(v) => v,
-                    Err(t) => return trouble(t),
-                };
-                *backoff = BACKOFF_FIRST;
-                let item = match values.as_mut() {
-                    None => {
-                        values = Some(read.clone());
-                        Item::Start(t, read)
-                    }
-                    Some(old) => {
-                        let events: Vec<Event> = read
-                            .iter()
-                            .zip(old.iter_mut())
-                            .enumerate()
-                            .filter(|(_, (new, old))| *new != *old)
-                            .map(|(i, (&new, old))| {
-                                *old = new;
-                                Event { t, signal: SignalId(i as u32), value: new }
-                            })
-                            .collect();
-                        if events.is_empty() {
-                            continue;
-                        }
-                        Item::Scan(events)
-                    }
-                };
-                if link.items.send(item).await.is_err() {
-                    return Ended::Gone;
-                }
+            Ok(false) => {}
+        }
+        let now = std::time::Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        }
+        // Missed polls are skipped, not made up in a burst.
+        next = (next + source.period).max(std::time::Instant::now());
+        let t = clock.now();
+        let read = match poll(source, blocks, n, ctx).await {
+            Ok(v) => v,
+            Err(t) => return trouble(t),
+        };
+        *backoff = BACKOFF_FIRST;
+        let item = match values.as_mut() {
+            None => {
+                values = Some(read.clone());
+                Item::Start(t, read)
             }
+            Some(old) => {
+                let events: Vec<Event> = read
+                    .iter()
+                    .zip(old.iter_mut())
+                    .enumerate()
+                    .filter(|(_, (new, old))| *new != *old)
+                    .map(|(i, (&new, old))| {
+                        *old = new;
+                        Event {
+                            t,
+                            signal: SignalId(i as u32),
+                            value: new,
+                        }
+                    })
+                    .collect();
+                if events.is_empty() {
+                    continue;
+                }
+                Item::Scan(events)
+            }
+        };
+        if link.items.send(item).await.is_err() {
+            return Ended::Gone;
         }
     }
 }
