@@ -10,7 +10,7 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
 fn path(rel: &str) -> String {
@@ -23,6 +23,14 @@ fn path(rel: &str) -> String {
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
 const PLANT: &str = "datasets/data/sorting/F2/plant.toml";
 const EVENTS: &str = "datasets/data/sorting/F2/events.csv";
+
+/// The tests here run one at a time: each is a real-time run whose timing a
+/// loaded machine would blur (two cores, a Python server, a PLC at 5×).
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn serial() -> MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
@@ -153,6 +161,7 @@ fn http_get(port: u16, route: &str) -> String {
 /// writes `def_C4` to coil 100, and shows it on `/status` and `/metrics`.
 #[test]
 fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
+    let _serial = serial();
     let port = free_port();
     let http = free_port();
     // F2 (C4 stuck at 1) starts at 602 s; RE(C5) settles it about 3.7 s later.
@@ -197,6 +206,7 @@ fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
 /// `def_C4` again.
 #[test]
 fn a_restarted_plc_gets_the_raised_flag_back() {
+    let _serial = serial();
     let port = free_port();
     let mut first = python_plc(port, 596_000, 608_000, 2.0);
     let mut mon = monitor(port, None, "14s");
@@ -234,6 +244,7 @@ fn a_restarted_plc_gets_the_raised_flag_back() {
 /// keeps trying and ends cleanly.
 #[test]
 fn garbage_on_the_socket_is_a_lost_connection() {
+    let _serial = serial();
     let listener = TcpListener::bind("127.0.0.1:0").expect("binds");
     let port = listener.local_addr().expect("address").port();
     std::thread::spawn(move || {
@@ -254,12 +265,13 @@ fn garbage_on_the_socket_is_a_lost_connection() {
 }
 
 /// The whole loop on loopback: the virtual PLC (safe control by constraints
-/// and the rewritable filter) runs the sorting line at 10 times real time with
-/// C4 stuck at 1 from 60 s; the monitor polls it, labels F2, writes `def_C4`;
+/// and the rewritable filter) runs the sorting line at 5 times real time with
+/// C4 stuck at 1 from 40 s; the monitor polls it, labels F2, writes `def_C4`;
 /// the PLC's filter switches C4 to its estimate and boxes keep being delivered
 /// without damage.
 #[test]
 fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
+    let _serial = serial();
     let dir = tempfile::tempdir().expect("temporary directory");
     let run = dir.path().join("run");
     let model = dir.path().join("model.json");
@@ -290,7 +302,7 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
 
     let mut plc = Command::new(bin)
         .args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
-        .args(["--speed", "10", "--duration", "3min", "--fault", "F2@60s"])
+        .args(["--speed", "5", "--duration", "150s", "--fault", "F2@40s"])
         .arg("--model")
         .arg(&model)
         .stdout(Stdio::piped())
@@ -314,7 +326,7 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
             .arg("--model")
             .arg(&model)
             .args(["--modbus", &format!("127.0.0.1:{port}")])
-            .args(["--speed", "10", "--duration", "16s"]),
+            .args(["--speed", "5", "--duration", "28s"]),
     );
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(30));
     let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
@@ -337,9 +349,9 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
         .unwrap_or_else(|| panic!("the PLC never read def_C4: {summary}"));
     // Raised after the fault began, and read by the PLC.
     let at = def_c4["t_ms"].as_u64().expect("t_ms");
-    assert!((60_000..180_000).contains(&at), "{summary}");
+    assert!((40_000..150_000).contains(&at), "{summary}");
     assert_eq!(summary["damage"], serde_json::json!([]), "{summary}");
-    // About 2 min of line after the flag at ~300 boxes/h: some ten boxes.
+    // Over 1.5 min of line after the flag at ~300 boxes/h: some eight boxes.
     let since = summary["delivered_since_flag"].as_u64().expect("a count");
     assert!(since >= 4, "{summary}");
 }
