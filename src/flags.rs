@@ -58,6 +58,13 @@ impl FlagBoard {
         changed
     }
 
+    /// Counts `flag` (a `def_` flag found up on the PLC) as raised.
+    pub fn adopt(&mut self, flag: &str) {
+        if !self.raised.iter().any(|f| f == flag) {
+            self.raised.push(flag.to_string());
+        }
+    }
+
     /// `def_` flags raised so far (never lowered), in the order raised.
     pub fn raised(&self) -> &[String] {
         &self.raised

@@ -25,7 +25,7 @@ const PLANT: &str = "datasets/data/sorting/F2/plant.toml";
 const EVENTS: &str = "datasets/data/sorting/F2/events.csv";
 
 /// The tests here run one at a time: each is a real-time run whose timing a
-/// loaded machine would blur (two cores, a Python server, a PLC at 5×).
+/// loaded machine would blur (two cores, a Python server, a PLC at 4×).
 static SERIAL: Mutex<()> = Mutex::new(());
 
 fn serial() -> MutexGuard<'static, ()> {
@@ -104,6 +104,11 @@ impl Drop for Lines {
 
 /// The pymodbus PLC replaying the F2 run from `from_ms` to `to_ms` at `speed`.
 fn python_plc(port: u16, from_ms: u64, to_ms: u64, speed: f64) -> Lines {
+    python_plc_with(port, from_ms, to_ms, speed, &[])
+}
+
+/// The same, with `flags` up from the start.
+fn python_plc_with(port: u16, from_ms: u64, to_ms: u64, speed: f64, flags: &[&str]) -> Lines {
     let probe = Command::new("python3")
         .args(["-c", "import pymodbus"])
         .status()
@@ -112,15 +117,19 @@ fn python_plc(port: u16, from_ms: u64, to_ms: u64, speed: f64) -> Lines {
         probe.success(),
         "pymodbus is missing: python3 -m pip install pymodbus==3.6.9"
     );
-    let mut plc = Lines::spawn(Command::new("python3").args([
-        &path("tests/modbus/pymodbus_plc.py"),
-        &path(PLANT),
-        &path(EVENTS),
-        &port.to_string(),
-        &from_ms.to_string(),
-        &to_ms.to_string(),
-        &speed.to_string(),
-    ]));
+    let mut plc = Lines::spawn(
+        Command::new("python3")
+            .args([
+                &path("tests/modbus/pymodbus_plc.py"),
+                &path(PLANT),
+                &path(EVENTS),
+                &port.to_string(),
+                &from_ms.to_string(),
+                &to_ms.to_string(),
+                &speed.to_string(),
+            ])
+            .args(flags),
+    );
     assert!(
         plc.wait_for("serving", Duration::from_secs(20)).is_some(),
         "the pymodbus server did not start: {}",
@@ -167,9 +176,12 @@ fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
     // F2 (C4 stuck at 1) starts at 602 s; RE(C5) settles it about 3.7 s later.
     let mut plc = python_plc(port, 596_000, 608_000, 2.0);
     let mut mon = monitor(port, Some(http), "8s");
-    let certain = mon.wait_for("\"verdict\":\"certain\"", Duration::from_secs(15));
+    // Other parts may see a polling artefact (an edge a few ms outside its
+    // learned window); the turntable's verdict is what is checked.
+    let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(15));
     let certain = certain.unwrap_or_else(|| panic!("no certain verdict: {:?}", mon.seen));
-    assert!(certain.contains("\"labels\":[\"F2\"]"), "{certain}");
+    assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
+    assert!(certain.contains("\"verdict\":\"certain\""), "{certain}");
     assert!(certain.contains("\"flags\":[\"def_C4\"]"), "{certain}");
     let written = plc.wait_for(
         "\"flag\": \"def_C4\", \"coil\": 100, \"value\": true",
@@ -265,7 +277,7 @@ fn garbage_on_the_socket_is_a_lost_connection() {
 }
 
 /// The whole loop on loopback: the virtual PLC (safe control by constraints
-/// and the rewritable filter) runs the sorting line at 5 times real time with
+/// and the rewritable filter) runs the sorting line at 4 times real time with
 /// C4 stuck at 1 from 40 s; the monitor polls it, labels F2, writes `def_C4`;
 /// the PLC's filter switches C4 to its estimate and boxes keep being delivered
 /// without damage.
@@ -290,9 +302,10 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
         .arg(&run)
         .output()
         .expect("simulate runs"));
-    // Polling adds up to a poll of jitter to every edge: wider guards.
+    // Polling adds up to half a scan to every edge, and a loaded machine's
+    // scheduling a few milliseconds more (times the speed): wider guards.
     ok(Command::new(bin)
-        .args(["learn", "--margin", "30ms", "--plant"])
+        .args(["learn", "--margin", "50ms", "--plant"])
         .arg(run.join("plant.toml"))
         .arg(run.join("events.csv"))
         .arg("-o")
@@ -302,7 +315,7 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
 
     let mut plc = Command::new(bin)
         .args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
-        .args(["--speed", "5", "--duration", "150s", "--fault", "F2@40s"])
+        .args(["--speed", "4", "--duration", "140s", "--fault", "F2@40s"])
         .arg("--model")
         .arg(&model)
         .stdout(Stdio::piped())
@@ -326,7 +339,7 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
             .arg("--model")
             .arg(&model)
             .args(["--modbus", &format!("127.0.0.1:{port}")])
-            .args(["--speed", "5", "--duration", "28s"]),
+            .args(["--speed", "4", "--duration", "33s"]),
     );
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(30));
     let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
@@ -349,9 +362,41 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
         .unwrap_or_else(|| panic!("the PLC never read def_C4: {summary}"));
     // Raised after the fault began, and read by the PLC.
     let at = def_c4["t_ms"].as_u64().expect("t_ms");
-    assert!((40_000..150_000).contains(&at), "{summary}");
+    assert!((40_000..140_000).contains(&at), "{summary}");
     assert_eq!(summary["damage"], serde_json::json!([]), "{summary}");
-    // Over 1.5 min of line after the flag at ~300 boxes/h: some eight boxes.
+    // Some 90 s of line after the flag at ~300 boxes/h: about seven boxes.
     let since = summary["delivered_since_flag"].as_u64().expect("a count");
     assert!(since >= 4, "{summary}");
+}
+
+/// A monitor started afresh finds `def_C4` up on the PLC (raised by an earlier
+/// run, before a restart of the monitor): it keeps it raised and never writes
+/// it down, though its own diagnosers, new to the plant, see nothing wrong.
+#[test]
+fn a_fresh_monitor_keeps_the_flags_it_finds_raised() {
+    let _serial = serial();
+    let port = free_port();
+    // A fault-free stretch of the run, before F2 begins at 602 s.
+    let mut plc = python_plc_with(port, 100_000, 108_000, 2.0, &["def_C4"]);
+    let mut mon = monitor(port, None, "3s");
+    let status = mon.child.wait().expect("the monitor ends");
+    let err = mon.stderr();
+    assert!(status.success(), "{err}");
+    assert!(err.contains("kept raised: def_C4"), "{err}");
+    assert!(err.contains("flags: def_C4"), "{err}");
+    let _ = plc.wait_for("never printed", Duration::from_millis(300));
+    assert!(
+        plc.seen
+            .iter()
+            .any(|l| l.contains("\"flag\": \"def_C4\", \"coil\": 100, \"value\": true")),
+        "{:?}",
+        plc.seen
+    );
+    assert!(
+        !plc.seen
+            .iter()
+            .any(|l| l.contains("\"flag\": \"def_C4\", \"coil\": 100, \"value\": false")),
+        "def_C4 was written down: {:?}",
+        plc.seen
+    );
 }

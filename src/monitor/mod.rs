@@ -371,6 +371,19 @@ async fn monitor(
                             s.gaps += 1;
                         });
                     }
+                    Item::FoundRaised(flags) => {
+                        eprintln!(
+                            "monitor: flags already up on the PLC, kept raised: {}",
+                            flags.join(" ")
+                        );
+                        let mut b = board.borrow_mut();
+                        for f in &flags {
+                            b.adopt(f);
+                        }
+                        let image = b.image(&plant);
+                        with_status(&mut |s| s.set_flags(b.raised(), b.suspects()));
+                        let _ = flag_tx.send(image);
+                    }
                     Item::FlagsWritten(up) => {
                         if !up.is_empty() {
                             eprintln!("monitor: flags written to the PLC: {}", up.join(" "));

@@ -174,10 +174,9 @@ impl Source for ModbusSource {
 
 async fn run(source: ModbusSource, mut link: Link) {
     let clock = LiveClock::new(source.speed);
-    let blocks = source.blocks();
-    let n = source.map.signals.len();
     let mut backoff = BACKOFF_FIRST;
     let mut connected_once = false;
+    let mut adopted = vec![false; source.flags.len()];
     loop {
         let mut ctx = match connect(&source).await {
             Ok(ctx) => ctx,
@@ -212,12 +211,11 @@ async fn run(source: ModbusSource, mut link: Link) {
         connected_once = true;
         match session(
             &source,
-            &blocks,
-            n,
             &clock,
             &mut ctx,
             &mut link,
             &mut backoff,
+            &mut adopted,
         )
         .await
         {
@@ -278,16 +276,36 @@ enum Ended {
 
 async fn session(
     source: &ModbusSource,
-    blocks: &[Block],
-    n: usize,
     clock: &LiveClock,
     ctx: &mut Context,
     link: &mut Link,
     backoff: &mut std::time::Duration,
+    adopted: &mut [bool],
 ) -> Ended {
-    // Every flag first: the PLC may have restarted and forgotten them.
+    let blocks = source.blocks();
+    let n = source.map.signals.len();
+    // `def_` flags already up on the PLC stay up: raised by an earlier run of
+    // the monitor, they are lowered only by people (after a repair).
+    let on_plc = match read_flags(source, ctx).await {
+        Ok(v) => v,
+        Err(t) => return trouble(t),
+    };
+    for (kept, &up) in adopted.iter_mut().zip(&on_plc) {
+        *kept |= up;
+    }
+    let found: Vec<String> = source
+        .flags
+        .iter()
+        .zip(adopted.iter())
+        .filter(|(_, up)| **up)
+        .map(|(f, _)| f.0.clone())
+        .collect();
+    if !found.is_empty() && link.items.send(Item::FoundRaised(found)).await.is_err() {
+        return Ended::Gone;
+    }
+    // Then every flag: the PLC may have restarted and forgotten them.
     let mut written: Vec<Option<bool>> = vec![None; source.flags.len()];
-    if let Err(t) = write_flags(source, ctx, link, &mut written).await {
+    if let Err(t) = write_flags(source, ctx, link, &mut written, adopted).await {
         return trouble(t);
     }
     let mut values: Option<Vec<bool>> = None;
@@ -299,7 +317,7 @@ async fn session(
         match link.flags.has_changed() {
             Err(_) => return Ended::Gone,
             Ok(true) => {
-                if let Err(t) = write_flags(source, ctx, link, &mut written).await {
+                if let Err(t) = write_flags(source, ctx, link, &mut written, adopted).await {
                     return trouble(t);
                 }
             }
@@ -312,7 +330,7 @@ async fn session(
         // Missed polls are skipped, not made up in a burst.
         next = (next + source.period).max(std::time::Instant::now());
         let t = clock.now();
-        let read = match poll(source, blocks, n, ctx).await {
+        let read = match poll(source, &blocks, n, ctx).await {
             Ok(v) => v,
             Err(t) => return trouble(t),
         };
@@ -411,14 +429,34 @@ async fn poll(
         .collect())
 }
 
-/// Writes the flag coils whose value differs from the one last written.
+/// Reads the flag coils; only `def_` flags count as up (a `suspect_` flag
+/// follows the diagnosers' present doubts, not an earlier run's).
+async fn read_flags(source: &ModbusSource, ctx: &mut Context) -> Result<Vec<bool>, Trouble> {
+    let mut up = vec![false; source.flags.len()];
+    for (i, (name, coil)) in source.flags.iter().enumerate() {
+        if !name.starts_with("def_") {
+            continue;
+        }
+        let r = tokio::time::timeout(REPLY_TIMEOUT, ctx.read_coils(*coil, 1)).await;
+        let bits = call(&format!("reading flag {name} from coil {coil}"), r)?;
+        up[i] = bits.first().copied().unwrap_or(false);
+    }
+    Ok(up)
+}
+
+/// Writes the flag coils whose value differs from the one last written; a
+/// flag found raised on the PLC is written up whatever the image says.
 async fn write_flags(
     source: &ModbusSource,
     ctx: &mut Context,
     link: &mut Link,
     written: &mut [Option<bool>],
+    adopted: &[bool],
 ) -> Result<(), Trouble> {
-    let image = link.flags.borrow_and_update().clone();
+    let mut image = link.flags.borrow_and_update().clone();
+    for (up, &kept) in image.iter_mut().zip(adopted) {
+        *up |= kept;
+    }
     let mut wrote = Vec::new();
     let mut any = false;
     for ((name, coil), (&up, last)) in source

@@ -25,6 +25,9 @@ pub enum Item {
     /// deadline may fire until the next [`Item::Start`], since an event could
     /// be happening unseen.
     Lost(Time, String),
+    /// `def_` flags found up on the PLC on connecting (raised by an earlier
+    /// run): they count as raised.
+    FoundRaised(Vec<String>),
     /// Flag coils were written to the PLC; these are the flags written up.
     FlagsWritten(Vec<String>),
     /// A problem that does not stop the monitor.

@@ -7,7 +7,9 @@ partition order, then every suspect_ flag), replaying the log's events between
 two times at a chosen speed. Every flag coil a client writes is printed on
 stdout as one JSON line, e.g. {"flag": "def_C4", "coil": 100, "value": true}.
 
-Usage: pymodbus_plc.py PLANT.toml EVENTS.csv PORT FROM_MS TO_MS SPEED
+Usage: pymodbus_plc.py PLANT.toml EVENTS.csv PORT FROM_MS TO_MS SPEED [FLAG...]
+
+The FLAGs given are up from the start (as an earlier monitor left them).
 """
 
 import asyncio
@@ -78,6 +80,7 @@ async def replay(device, places, events, start_ms, end_ms, speed):
 
 async def main():
     plant_path, events_path, port, start_ms, end_ms, speed = sys.argv[1:7]
+    preset = sys.argv[7:]
     start_ms, end_ms, speed = float(start_ms), float(end_ms), float(speed)
     with open(plant_path, "rb") as f:
         plant = tomllib.load(f)
@@ -90,6 +93,9 @@ async def main():
         co=ModbusSequentialDataBlock(0, [False] * 256),
         zero_mode=True,
     )
+    for coil, flag in flag_coils.items():
+        if flag in preset:
+            device.setValues(1, coil, [True])
     # The state at the start time: every event up to it.
     for t, name, value in rows:
         if t > start_ms:
