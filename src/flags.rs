@@ -85,3 +85,50 @@ impl FlagBoard {
         plant.flags().iter().map(|f| self.is_up(f)).collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use diagnoser::diagnosis::VerdictKind;
+
+    use super::*;
+
+    fn verdict(part: &str, flags: &[&str], suspects: &[&str]) -> Verdict {
+        Verdict {
+            t: 0,
+            part: part.into(),
+            verdict: VerdictKind::Ambiguous,
+            labels: Vec::new(),
+            flags: flags.iter().map(|f| f.to_string()).collect(),
+            suspects: suspects.iter().map(|s| s.to_string()).collect(),
+            reason: String::new(),
+        }
+    }
+
+    #[test]
+    fn def_flags_stay_raised_and_suspects_follow_the_parts() {
+        let plant = datasets::sorting::plant();
+        let mut board = FlagBoard::default();
+        assert!(board.update(&verdict("turntable", &[], &["C4", "P"])));
+        assert_eq!(board.suspects(), ["suspect_C4", "suspect_P"]);
+        // The plant view repeats the parts: it changes nothing.
+        assert!(!board.update(&verdict(PLANT_VIEW, &["def_C5"], &["C5"])));
+        assert!(board.update(&verdict("turntable", &["def_C4"], &["C4"])));
+        assert_eq!(board.raised(), ["def_C4"]);
+        assert_eq!(board.suspects(), ["suspect_C4"]);
+        // A later verdict without the flag does not lower it.
+        assert!(board.update(&verdict("turntable", &[], &[])));
+        assert_eq!(board.raised(), ["def_C4"]);
+        assert!(board.suspects().is_empty());
+        assert!(!board.update(&verdict("turntable", &[], &[])));
+        board.adopt("def_P");
+        let image = board.image(&plant);
+        let up: Vec<String> = plant
+            .flags()
+            .into_iter()
+            .zip(image)
+            .filter(|(_, up)| *up)
+            .map(|(f, _)| f)
+            .collect();
+        assert_eq!(up, ["def_C4", "def_P"]);
+    }
+}

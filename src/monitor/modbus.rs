@@ -274,6 +274,8 @@ enum Ended {
     Refused(String),
 }
 
+/// One connection: the flags found and written, then polls until the
+/// connection fails or the monitor stops.
 async fn session(
     source: &ModbusSource,
     clock: &LiveClock,
