@@ -50,11 +50,10 @@ impl FlagBoard {
                 }
                 acc
             });
-        if now != self.suspects {
-            changed |=
-                now.len() != self.suspects.len() || now.iter().any(|s| !self.suspects.contains(s));
-            self.suspects = now;
-        }
+        // The same suspects in another order change no flag.
+        changed |=
+            now.len() != self.suspects.len() || now.iter().any(|s| !self.suspects.contains(s));
+        self.suspects = now;
         changed
     }
 

@@ -323,10 +323,9 @@ async fn monitor(
                         started = true;
                         blind = false;
                         lost_at = None;
-                        let shown = time_value_of(t0, time_format);
                         with_status(&mut |s| {
                             s.connected = true;
-                            s.t = Some(shown.clone());
+                            s.t = Some(t0);
                         });
                     }
                     Item::Scan(_) if !started || blind => {
@@ -423,11 +422,10 @@ async fn monitor(
             }
             diagnoser.advance_to(t, &mut emit);
             last_t = Some(t);
-            let shown = time_value_of(t, time_format);
             let took = evidence.get().elapsed();
             with_status(&mut |s| {
                 s.events += n;
-                s.t = Some(shown.clone());
+                s.t = Some(t);
                 s.evidence.record(took);
             });
         }
@@ -501,10 +499,6 @@ async fn wake_at(at: Instant) {
     while Instant::now() < at {
         tokio::task::yield_now().await;
     }
-}
-
-fn time_value_of(t: Time, time: TimeFormat) -> serde_json::Value {
-    status::time_value(t, time)
 }
 
 /// SIGTERM, as a stream of signals (a stream that never yields where there is

@@ -113,8 +113,10 @@ pub struct Status {
     pub source: String,
     /// Whether the source sees the plant now.
     pub connected: bool,
-    /// Time of the last scan read, if any.
-    pub t: Option<serde_json::Value>,
+    /// Time of the last scan read, if any (printed when `/status` is asked:
+    /// not on every scan).
+    #[serde(serialize_with = "no_time")]
+    pub t: Option<Time>,
     /// Every part's latest verdict, in plant order.
     pub parts: Vec<PartStatus>,
     /// `def_` flags raised (never lowered).
@@ -131,8 +133,6 @@ pub struct Status {
     pub gaps: u64,
     /// Flag images written to the PLC.
     pub flag_writes: u64,
-    /// Label latency, 99th percentile, in microseconds.
-    pub latency_p99_us: Option<u64>,
     #[serde(skip)]
     pub latency: Latency,
     /// From evidence to the diagnosers done with it, for every scan and
@@ -143,6 +143,11 @@ pub struct Status {
     pub time: TimeFormat,
     #[serde(skip)]
     all_flags: Vec<String>,
+}
+
+/// `t` is written by [`Status::json`], in the source's time form.
+fn no_time<S: serde::Serializer>(_: &Option<Time>, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_none()
 }
 
 /// A time as the JSON lines write it: a number, or RFC 3339 text.
@@ -184,7 +189,6 @@ impl Status {
             warnings: 0,
             gaps: 0,
             flag_writes: 0,
-            latency_p99_us: None,
             latency: Latency::default(),
             evidence: Latency::default(),
             time,
@@ -210,11 +214,18 @@ impl Status {
         }
     }
 
-    /// The `/status` body.
+    /// The `/status` body: the fields above, with the last scan's time in the
+    /// source's form and the label latency's 99th percentile. The latency
+    /// counts are not copied.
     pub fn json(&self) -> String {
-        let mut s = self.clone();
-        s.latency_p99_us = self.latency.quantile(0.99).map(|d| d.as_micros() as u64);
-        serde_json::to_string_pretty(&s).unwrap_or_else(|_| "{}".into())
+        let Ok(serde_json::Value::Object(mut body)) = serde_json::to_value(self) else {
+            return "{}".into();
+        };
+        let t = self.t.map(|t| time_value(t, self.time));
+        body.insert("t".into(), t.unwrap_or_default());
+        let p99 = self.latency.quantile(0.99).map(|d| d.as_micros() as u64);
+        body.insert("latency_p99_us".into(), p99.into());
+        serde_json::to_string_pretty(&body).unwrap_or_else(|_| "{}".into())
     }
 
     /// The `/metrics` body, in the Prometheus text format.
