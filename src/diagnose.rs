@@ -4,7 +4,7 @@ use std::io::{BufWriter, IsTerminal, Write};
 use std::path::PathBuf;
 
 use clap::Args;
-use diagnoser::diagnosis::{DiagnoserOptions, PartSummary, PlantDiagnoser, Verdict};
+use diagnoser::diagnosis::{DiagnoserOptions, PartSummary, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
 use diagnoser::{Plant, Time, TimeFormat, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -44,6 +44,10 @@ pub struct DiagnoseArgs {
     /// flags, instead of the verdict changes.
     #[arg(long)]
     summary: bool,
+    /// Also write the HTML fault review of the logs (as `gardefou report`) to
+    /// this file.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
 }
 
 fn bad(e: impl std::fmt::Display) -> Failure {
@@ -154,7 +158,36 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     }
     bar.finish_and_clear();
     if args.summary {
-        write_summary(&mut out, &summaries, several).map_err(io)?;
+        let colour = std::io::stdout().is_terminal() && std::env::var_os("NO_COLOR").is_none();
+        write_summary(&mut out, &summaries, several, colour).map_err(io)?;
+    }
+    if let Some(path) = &args.report {
+        let request = crate::report::Request {
+            plant_path: &args.plant,
+            model_path: &args.model,
+            logs: &args.logs,
+            ingest: IngestOptions {
+                format: args.format,
+                time_unit: args.time_unit.unwrap_or(plant.time_unit),
+                ..IngestOptions::default()
+            },
+            options: DiagnoserOptions {
+                glitch_max: args.glitch_max,
+            },
+            end: args.end.map(|e| {
+                let unit = args.time_unit.unwrap_or(plant.time_unit);
+                (e * unit.nanos() as f64).round() as diagnoser::Time
+            }),
+            coupling: filter_coupling::filter::Coupling::Flags,
+            layout: Some(crate::report::pictures::Layout::Auto),
+        };
+        let page = crate::report::build(&plant, &model, &request)?;
+        crate::report::write_atomically(path, page.as_bytes())?;
+        eprintln!(
+            "report written to {} ({} bytes)",
+            path.display(),
+            page.len()
+        );
     }
     match out.flush() {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(io(e)),
@@ -168,6 +201,7 @@ fn write_summary(
     out: &mut impl Write,
     summaries: &[(String, TimeFormat, Vec<PartSummary>)],
     several: bool,
+    colour: bool,
 ) -> std::io::Result<()> {
     for (log, time, parts) in summaries {
         if several {
@@ -211,8 +245,20 @@ fn write_summary(
             s
         };
         writeln!(out, "{}", line(head))?;
-        for r in &rows {
-            writeln!(out, "{}", line([&r[0], &r[1], &r[2], &r[3], &r[4]]))?;
+        for (r, p) in rows.iter().zip(parts.iter()) {
+            let text = line([&r[0], &r[1], &r[2], &r[3], &r[4]]);
+            if colour {
+                // Colour the whole row after padding, so that the escape codes
+                // never count as width: green normal, red certain, yellow ambiguous.
+                let code = match p.verdict {
+                    VerdictKind::Normal => "32",
+                    VerdictKind::Certain => "1;31",
+                    VerdictKind::Ambiguous => "33",
+                };
+                writeln!(out, "\x1b[{code}m{text}\x1b[0m")?;
+            } else {
+                writeln!(out, "{text}")?;
+            }
         }
     }
     Ok(())

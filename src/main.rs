@@ -15,6 +15,7 @@ mod filter;
 mod flags;
 mod learn;
 mod monitor;
+mod report;
 mod simulate;
 mod virtual_plc;
 
@@ -45,6 +46,9 @@ enum Command {
     Check(check::CheckArgs),
     /// Simulate a reference plant (with injected faults) and write its logs.
     Simulate(simulate::SimulateArgs),
+    /// A self-contained HTML fault review: verdicts, timelines, explanations and
+    /// pictures of the models.
+    Report(report::ReportArgs),
 }
 
 /// A failure: bad input (exit code 2) or a failure of the machine (exit code 1).
@@ -105,6 +109,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Filter(args) => filter::run(args),
         Command::Monitor(args) => monitor::run(args),
+        Command::Report(args) => report::run(args),
     };
     match result {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,

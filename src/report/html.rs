@@ -1,0 +1,1019 @@
+//! The report page: summary, timelines' data, explanations and pictures.
+//!
+//! The page is written as one string. Timelines are drawn in the browser from
+//! the embedded data (`report.js`), so that a day-long log zooms from the whole
+//! day down to single scans without the file holding one picture per zoom.
+
+use std::collections::HashMap;
+use std::fmt::Write;
+use std::path::Path;
+
+use diagnoser::diagnosis::compile::Compiled;
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
+use diagnoser::model::{Model, PartModel};
+use diagnoser::{Plant, SignalKind, Time, TimeFormat};
+use filter_coupling::filter::Coupling;
+use serde_json::{Value, json};
+
+use super::collect::{Change, Detection, LogReplay, Trip};
+use super::pictures::{self, Layout, Picture};
+use super::words::{
+    absolute, description, duration, edge, escape, fault_meaning, filter_action, highlight,
+    literal_words, offset,
+};
+
+const CSS: &str = include_str!("assets/report.css");
+const JS: &str = include_str!("assets/report.js");
+
+/// The two pictures of one part.
+pub struct PartPictures {
+    /// Part name.
+    pub part: String,
+    /// The learned timed model.
+    pub model: Option<Picture>,
+    /// The diagnoser built from it.
+    pub diagnoser: Option<Picture>,
+}
+
+/// Draws every part's learned model and diagnoser.
+pub fn pictures(
+    plant: &Plant,
+    model: &Model,
+    options: &DiagnoserOptions,
+    layout: Layout,
+) -> Result<Vec<PartPictures>, String> {
+    let diagnoser = PlantDiagnoser::new(plant, model, options)?;
+    let mut out = Vec::new();
+    for (k, engine) in diagnoser.engines().iter().enumerate() {
+        let name = engine.part.name.clone();
+        let learned = match model.parts.iter().find(|p| p.name == name) {
+            Some(pm) => Some(pictures::render(
+                &learning::dot::part_to_dot(model, pm),
+                layout,
+                &format!("m{k}-"),
+            )?),
+            None => None,
+        };
+        let mut engine = engine.clone();
+        let compiled = Compiled::explore(&mut engine, 2);
+        let drawn = pictures::render(
+            &compiled.to_dot(&engine, model.time_unit),
+            layout,
+            &format!("d{k}-"),
+        )?;
+        out.push(PartPictures {
+            part: name,
+            model: learned,
+            diagnoser: Some(drawn),
+        });
+    }
+    Ok(out)
+}
+
+/// Everything the page shows.
+pub struct Page<'a> {
+    /// The plant.
+    pub plant: &'a Plant,
+    /// The model.
+    pub model: &'a Model,
+    /// Where the plant file is.
+    pub plant_path: &'a Path,
+    /// Where the model is.
+    pub model_path: &'a Path,
+    /// Which flags the filter read.
+    pub coupling: Coupling,
+    /// One per log.
+    pub replays: &'a [LogReplay],
+    /// One per part (empty: no pictures).
+    pub pictures: &'a [PartPictures],
+}
+
+fn verdict_name(v: VerdictKind) -> &'static str {
+    match v {
+        VerdictKind::Normal => "normal",
+        VerdictKind::Certain => "certain",
+        VerdictKind::Ambiguous => "ambiguous",
+    }
+}
+
+/// The whole page.
+pub fn page(p: &Page<'_>) -> String {
+    let mut h = String::with_capacity(1 << 20);
+    let title = format!("Fault review: {}", p.plant.name);
+    let _ = write!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
+         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
+         <meta name=\"generator\" content=\"gardefou {}\">\n<title>{}</title>\n<style>\n{CSS}\n</style>\n</head>\n<body>\n",
+        env!("CARGO_PKG_VERSION"),
+        escape(&title)
+    );
+    let _ = writeln!(
+        h,
+        "<header class=\"report-header\"><h1>{}</h1>\n<p class=\"meta\">Plant file <code>{}</code>; model <code>{}</code> (learned from {} over {}); the safety filter replayed with coupling <code>{}</code>{}.</p>",
+        escape(&title),
+        escape(&p.plant_path.display().to_string()),
+        escape(&p.model_path.display().to_string()),
+        escape(&p.model.learned_from.logs.join(", ")),
+        duration((p.model.learned_from.duration * p.model.time_unit.nanos() as f64) as Time),
+        p.coupling.name(),
+        match p.coupling {
+            Coupling::None => ": constraints read the sensors as they are",
+            Coupling::Flags => ": a def_ flag switches a failed sensor to its temporal estimate",
+            Coupling::FlagsAndSuspects =>
+                ": def_ and suspect_ flags switch sensors to their temporal estimates",
+        }
+    );
+    if p.replays.len() > 1 {
+        h.push_str("<nav class=\"logs\"><ul>");
+        for (i, r) in p.replays.iter().enumerate() {
+            let _ = write!(
+                h,
+                "<li><a href=\"#log-{i}\">{}</a> — {}</li>",
+                escape(&r.name),
+                escape(&plant_line(r))
+            );
+        }
+        h.push_str("</ul></nav>");
+    }
+    h.push_str("</header>\n<main>\n");
+    let mut data_logs = Vec::new();
+    for (i, r) in p.replays.iter().enumerate() {
+        data_logs.push(log_section(&mut h, p, i, r));
+    }
+    models_section(&mut h, p);
+    h.push_str("</main>\n");
+    let data = json!({ "plant": p.plant.name, "logs": data_logs });
+    let text = data.to_string().replace("</", "<\\/");
+    let _ = writeln!(
+        h,
+        "<script type=\"application/json\" id=\"gardefou-data\">{text}</script>\n<script>\n{JS}\n</script>\n</body>\n</html>"
+    );
+    h
+}
+
+fn plant_line(r: &LogReplay) -> String {
+    match r.summary.last() {
+        Some(s) if s.verdict != VerdictKind::Normal => {
+            format!("{} {}", verdict_name(s.verdict), s.labels.join(", "))
+        }
+        _ => "normal".to_string(),
+    }
+}
+
+/// The section of one log; returns its timeline data.
+fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
+    let plant = p.plant;
+    let at = |t: Time| absolute(r.time, t);
+    let rel = |t: Time| offset(t - r.start);
+    let _ = writeln!(
+        h,
+        "<section class=\"log\" id=\"log-{i}\" data-log=\"{i}\">\n<h2>{}</h2>\n<p class=\"meta\">From {} to {} ({}), {} events.</p>",
+        escape(&r.name),
+        escape(&at(r.start)),
+        escape(&at(r.end)),
+        duration(r.end - r.start),
+        r.events
+    );
+    if let Some(view) = r.summary.last() {
+        let _ = writeln!(
+            h,
+            "<p class=\"plant-view verdict-{v}\">Whole plant: <strong>{v}</strong> {}{}</p>",
+            escape(&view.labels.join(", ")),
+            if view.flags.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; flags raised: <code>{}</code>",
+                    escape(&view.flags.join(" "))
+                )
+            },
+            v = verdict_name(view.verdict),
+        );
+    }
+    // Summary table.
+    h.push_str(
+        "<table class=\"summary\">\n<thead><tr><th>part</th><th>verdict</th><th>labels</th><th>flags</th><th>first detection</th><th>meaning</th></tr></thead>\n<tbody>\n",
+    );
+    for s in r.summary.iter().take(plant.parts.len()) {
+        let meaning: Vec<String> = s
+            .labels
+            .iter()
+            .map(|l| {
+                if l == "N" {
+                    "no fault seen".to_string()
+                } else {
+                    fault_meaning(plant, l)
+                }
+            })
+            .collect();
+        let _ = writeln!(
+            h,
+            "<tr data-part=\"{part}\" data-log=\"{i}\"{zoom}><td class=\"part\"><a href=\"#log-{i}-{part}\">{part}</a></td><td class=\"verdict\"><span class=\"chip verdict-{v}\">{v}</span></td><td class=\"labels\">{}</td><td class=\"flags\">{}</td><td class=\"detected\">{}</td><td class=\"meaning\">{}</td></tr>",
+            escape(&s.labels.join(" ")),
+            escape(&s.flags.join(" ")),
+            s.detected.map_or("—".to_string(), |t| format!(
+                "{} ({})",
+                escape(&at(t)),
+                rel(t)
+            )),
+            meaning
+                .iter()
+                .map(|m| escape(m))
+                .collect::<Vec<_>>()
+                .join("<br>"),
+            part = escape(&s.part),
+            v = verdict_name(s.verdict),
+            zoom = s.detected.map_or(String::new(), |t| format!(
+                " data-zoom-log=\"{i}\" data-zoom-t=\"{}\"",
+                tick_of(r, t)
+            )),
+        );
+    }
+    h.push_str("</tbody></table>\n");
+    let _ = writeln!(
+        h,
+        "<div class=\"timeline-toolbar\" data-log=\"{i}\"><button type=\"button\" data-action=\"fit\" title=\"whole log\">fit</button><button type=\"button\" data-action=\"in\" title=\"zoom in\">+</button><button type=\"button\" data-action=\"out\" title=\"zoom out\">−</button><button type=\"button\" data-action=\"left\" title=\"earlier\">◀</button><button type=\"button\" data-action=\"right\" title=\"later\">▶</button><span class=\"range\"></span><span class=\"hint\">wheel: zoom · drag: pan · double-click: whole log</span></div>\n<noscript><p class=\"warning\">The timelines are drawn by the page's script: allow scripts to see them.</p></noscript>"
+    );
+    // Explanation ids, for links from the timeline data.
+    let mut detection_ids: HashMap<usize, String> = HashMap::new();
+    let mut next_id = 0usize;
+    for k in 0..r.detections.len() {
+        detection_ids.insert(k, format!("x{i}-{next_id}"));
+        next_id += 1;
+    }
+    let mut trip_ids: Vec<Option<String>> = Vec::with_capacity(r.trips.len());
+    for t in &r.trips {
+        trip_ids.push(t.detail.as_ref().map(|_| {
+            next_id += 1;
+            format!("x{i}-{}", next_id - 1)
+        }));
+    }
+    let mut parts_data = Vec::new();
+    let tick = tick_ns(r);
+    for (pi, part) in plant.parts.iter().enumerate() {
+        let s = r.summary.get(pi);
+        let pm = p.model.parts.iter().find(|m| m.name == part.name);
+        let _ = writeln!(
+            h,
+            "<section class=\"part\" id=\"log-{i}-{name}\" data-part=\"{name}\" data-log=\"{i}\">\n<h3>{name} <span class=\"chip verdict-{v}\">{v}</span> <span class=\"part-labels\">{labels}</span>{flags}</h3>",
+            name = escape(&part.name),
+            v = s.map_or("normal", |s| verdict_name(s.verdict)),
+            labels = escape(&s.map_or(String::new(), |s| s.labels.join(" "))),
+            flags = s
+                .filter(|s| !s.flags.is_empty())
+                .map_or(String::new(), |s| format!(
+                    " <span class=\"part-flags\">{}</span>",
+                    escape(&s.flags.join(" "))
+                )),
+        );
+        if let Some(s) = s.filter(|s| s.verdict != VerdictKind::Normal) {
+            h.push_str("<ul class=\"meaning\">");
+            for l in &s.labels {
+                let _ = write!(
+                    h,
+                    "<li><strong>{}</strong>: {}</li>",
+                    escape(l),
+                    escape(&fault_meaning(plant, l))
+                );
+            }
+            h.push_str("</ul>\n");
+        }
+        let _ = writeln!(
+            h,
+            "<div class=\"timeline-host\" data-log=\"{i}\" data-part=\"{}\"></div>",
+            escape(&part.name)
+        );
+        // Verdict changes.
+        let verdicts: Vec<&Verdict> = r.verdicts.iter().filter(|v| v.part == part.name).collect();
+        let mut verdicts_data = Vec::new();
+        if verdicts.is_empty() {
+            h.push_str("<p class=\"quiet\">No verdict change: the part behaved as learned all along.</p>\n");
+        } else {
+            h.push_str("<table class=\"verdicts\"><thead><tr><th>time</th><th>verdict</th><th>labels</th><th>flags</th><th>why</th></tr></thead><tbody>\n");
+            for v in &verdicts {
+                let explanation = r
+                    .detections
+                    .iter()
+                    .position(|d| {
+                        d.part == pi
+                            && d.verdict.t == v.t
+                            && d.verdict.labels == v.labels
+                            && d.verdict.verdict == v.verdict
+                    })
+                    .and_then(|k| detection_ids.get(&k).cloned());
+                let _ = writeln!(
+                    h,
+                    "<tr class=\"verdict-{vk}\" data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\"><td>{} <span class=\"rel\">{}</span></td><td><span class=\"chip verdict-{vk}\">{vk}</span></td><td>{}</td><td>{}</td><td>{}{}</td></tr>",
+                    escape(&at(v.t)),
+                    rel(v.t),
+                    escape(&v.labels.join(" ")),
+                    escape(&v.flags.join(" ")),
+                    escape(&v.reason),
+                    explanation.as_ref().map_or(String::new(), |id| format!(
+                        " <a href=\"#{id}\">explanation</a>"
+                    )),
+                    vk = verdict_name(v.verdict),
+                    tk = tick_of(r, v.t),
+                );
+                verdicts_data.push(json!({
+                    "t": tick_of(r, v.t),
+                    "verdict": verdict_name(v.verdict),
+                    "labels": v.labels,
+                    "flags": v.flags,
+                    "reason": v.reason,
+                    "explanation": explanation,
+                }));
+            }
+            h.push_str("</tbody></table>\n");
+        }
+        // Explanations of its detections.
+        for (k, d) in r
+            .detections
+            .iter()
+            .enumerate()
+            .filter(|(_, d)| d.part == pi)
+        {
+            if let Some(id) = detection_ids.get(&k) {
+                detection_article(h, p, r, i, id, d, pm);
+            }
+        }
+        // Signals and windows for the timeline.
+        let signals: Vec<String> = match pm {
+            Some(pm) => pm.signals.clone(),
+            None => part
+                .actuators
+                .iter()
+                .chain(&part.sensors)
+                .map(|&s| plant.signals.name(s).to_string())
+                .collect(),
+        };
+        let signals_data: Vec<Value> = signals
+            .iter()
+            .filter_map(|name| {
+                let id = plant.signals.id(name)?;
+                let sig = plant.signals.get(id);
+                let mut prev = r.start;
+                let edges: Vec<i64> = r.edges[id.index()]
+                    .iter()
+                    .map(|&t| {
+                        let d = (t - prev) / tick;
+                        prev += d * tick;
+                        d
+                    })
+                    .collect();
+                Some(json!({
+                    "name": name,
+                    "kind": if sig.kind == SignalKind::Actuator { "actuator" } else { "sensor" },
+                    "description": sig.description,
+                    "init": u8::from(r.initial.get(id.index()).copied().unwrap_or(false)),
+                    "edges": edges,
+                }))
+            })
+            .collect();
+        parts_data.push(json!({
+            "name": part.name,
+            "verdict": s.map_or("normal", |s| verdict_name(s.verdict)),
+            "labels": s.map(|s| s.labels.clone()).unwrap_or_default(),
+            "flags": s.map(|s| s.flags.clone()).unwrap_or_default(),
+            "detected": s.and_then(|s| s.detected).map(|t| tick_of(r, t)),
+            "signals": signals_data,
+            "windows": pm.map_or(json!({}), |pm| windows(p.model, pm, tick)),
+            "verdicts": verdicts_data,
+        }));
+        if !p.pictures.is_empty() {
+            let _ = writeln!(
+                h,
+                "<p class=\"models-link\"><a href=\"#models-{}\">Learned model and diagnoser of {}</a></p>",
+                escape(&part.name),
+                escape(&part.name)
+            );
+        }
+        h.push_str("</section>\n");
+    }
+    // The safety filter.
+    filter_section(h, p, r, i, &trip_ids);
+    h.push_str("</section>\n");
+    let time = match r.time {
+        TimeFormat::Numeric(unit) => json!({
+            "kind": "numeric",
+            "unit": unit.name(),
+            "unit_ns": unit.nanos(),
+            "start": r.start as f64 / unit.nanos() as f64,
+        }),
+        TimeFormat::Rfc3339 => json!({
+            "kind": "rfc3339",
+            "start_epoch_ms": r.start as f64 / 1e6,
+        }),
+    };
+    json!({
+        "index": i,
+        "name": r.name,
+        "tick_ns": tick,
+        "duration": (r.end - r.start) / tick,
+        "time": time,
+        "parts": parts_data,
+        "filter": {
+            "trips": r.trips.iter().zip(&trip_ids).map(|(t, id)| json!({
+                "t": tick_of(r, t.t),
+                "constraint": t.constraint,
+                "literals": t.literals,
+                "parts": t.parts,
+                "explanation": id,
+            })).collect::<Vec<_>>(),
+            "rewrites": r.rewrites.iter().map(|w| json!({
+                "t": tick_of(r, w.t),
+                "flag": w.flag,
+                "sensor": w.sensors.join(" "),
+                "constraints": w.constraints.iter().map(|c| c.0.clone()).collect::<Vec<_>>(),
+                "parts": w.parts,
+            })).collect::<Vec<_>>(),
+        },
+    })
+}
+
+/// The largest of 1 ms, 1 µs and 1 ns that divides every edge's offset from
+/// the start: the unit of the timeline data, keeping its numbers short.
+fn tick_ns(r: &LogReplay) -> Time {
+    for tick in [1_000_000, 1_000] {
+        if r.edges.iter().flatten().all(|t| (t - r.start) % tick == 0) {
+            return tick;
+        }
+    }
+    1
+}
+
+fn tick_of(r: &LogReplay, t: Time) -> i64 {
+    let tick = tick_ns(r);
+    ((t - r.start) as f64 / tick as f64).round() as i64
+}
+
+/// Per state of the part (its signals' values as `0`/`1` text), the sensor
+/// events expected next and their windows on the command clock, in ticks.
+fn windows(model: &Model, pm: &PartModel, tick: Time) -> Value {
+    let scale = model.time_unit.nanos() as f64 / tick as f64;
+    let mut out = serde_json::Map::new();
+    for s in &pm.states {
+        let key: String = s
+            .values
+            .iter()
+            .map(|&v| if v { '1' } else { '0' })
+            .collect();
+        let mut list = Vec::new();
+        for e in s.expected.iter().filter(|e| e.clock == "command") {
+            let Some(tr) = pm.transitions.get(e.transition).filter(|t| t.timed) else {
+                continue;
+            };
+            let signal = e
+                .event
+                .split_whitespace()
+                .next()
+                .and_then(|first| first.split_once('('))
+                .map(|(_, rest)| rest.trim_end_matches(')').to_string())
+                .unwrap_or_default();
+            list.push(json!({
+                "signal": signal,
+                "event": e.event,
+                "lo": (tr.guard.lo * scale).floor() as i64,
+                "hi": (tr.guard.hi * scale).ceil() as i64,
+            }));
+        }
+        if !list.is_empty() {
+            out.insert(key, Value::Array(list));
+        }
+    }
+    Value::Object(out)
+}
+
+/// A table of signals: name, value, meaning; `marked` ones highlighted,
+/// `changed` ones flagged.
+fn state_table(
+    plant: &Plant,
+    names: &[String],
+    values: &[bool],
+    marked: &[String],
+    before: Option<&[bool]>,
+) -> String {
+    let mut t = String::from(
+        "<table class=\"state\"><thead><tr><th>signal</th><th>value</th><th>meaning</th></tr></thead><tbody>",
+    );
+    for n in names {
+        let Some(id) = plant.signals.id(n) else {
+            continue;
+        };
+        let v = values.get(id.index()).copied().unwrap_or(false);
+        let changed = before.is_some_and(|b| b.get(id.index()).copied().unwrap_or(false) != v);
+        let mark = marked.iter().any(|m| m == n);
+        let _ = write!(
+            t,
+            "<tr class=\"{}{}\"><td><code>{}</code></td><td class=\"value v{}\">{}{}</td><td>{}</td></tr>",
+            if mark { "in-constraint" } else { "" },
+            if changed { " changed" } else { "" },
+            escape(n),
+            u8::from(v),
+            u8::from(v),
+            if changed {
+                " <span class=\"was\">(was ".to_string() + if v { "0" } else { "1" } + ")</span>"
+            } else {
+                String::new()
+            },
+            escape(description(plant, n))
+        );
+    }
+    t.push_str("</tbody></table>");
+    t
+}
+
+fn changes_table(plant: &Plant, changes: &[Change], reference: Time, marked: &[String]) -> String {
+    if changes.is_empty() {
+        return "<p class=\"quiet\">No change of these signals since the log started.</p>"
+            .to_string();
+    }
+    let mut t = String::from(
+        "<table class=\"changes\"><thead><tr><th>when</th><th>edges</th><th>meaning</th></tr></thead><tbody>",
+    );
+    for c in changes {
+        let edges: Vec<String> = c
+            .edges
+            .iter()
+            .map(|&(i, v)| {
+                let name = plant.signals.name(diagnoser::SignalId(i as u32));
+                let text = edge(name, v);
+                if marked.iter().any(|m| m == name) {
+                    format!("<mark class=\"literal\">{}</mark>", escape(&text))
+                } else {
+                    format!("<code>{}</code>", escape(&text))
+                }
+            })
+            .collect();
+        let meaning: Vec<String> = c
+            .edges
+            .iter()
+            .map(|&(i, v)| {
+                let name = plant.signals.name(diagnoser::SignalId(i as u32));
+                format!(
+                    "{} {}",
+                    escape(description(plant, name)),
+                    if v { "(on)" } else { "(off)" }
+                )
+            })
+            .collect();
+        let d = c.t - reference;
+        let _ = write!(
+            t,
+            "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
+            if d == 0 {
+                "at that scan".to_string()
+            } else {
+                format!("{} before", duration(-d))
+            },
+            edges.join(" "),
+            meaning.join("; ")
+        );
+    }
+    t.push_str("</tbody></table>");
+    t
+}
+
+fn vector_text(plant: &Plant, names: &[String], values: &[bool]) -> String {
+    names
+        .iter()
+        .filter_map(|n| {
+            let id = plant.signals.id(n)?;
+            Some(format!(
+                "{n}={}",
+                u8::from(values.get(id.index()).copied().unwrap_or(false))
+            ))
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn detection_article(
+    h: &mut String,
+    p: &Page<'_>,
+    r: &LogReplay,
+    i: usize,
+    id: &str,
+    d: &Detection,
+    pm: Option<&PartModel>,
+) {
+    let plant = p.plant;
+    let part = &plant.parts[d.part];
+    let v = &d.verdict;
+    let names: Vec<String> = match pm {
+        Some(pm) => pm.signals.clone(),
+        None => part
+            .actuators
+            .iter()
+            .chain(&part.sensors)
+            .map(|&s| plant.signals.name(s).to_string())
+            .collect(),
+    };
+    let _ = writeln!(
+        h,
+        "<article class=\"explanation detection verdict-{vk}\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\">{part}: {vk} {labels} at {when} <span class=\"rel\">{rel}</span></h4>\n<p class=\"reason\">{reason}</p>",
+        vk = verdict_name(v.verdict),
+        tk = tick_of(r, v.t),
+        part = escape(&part.name),
+        labels = escape(&v.labels.join(", ")),
+        when = escape(&absolute(r.time, v.t)),
+        rel = offset(v.t - r.start),
+        reason = escape(&v.reason),
+    );
+    // Level 0: current state.
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"0\"><h5>Current state</h5>{}{}</section>",
+        state_table(plant, &names, &d.now, &[], None),
+        if v.flags.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "<p>Flags raised: <code>{}</code>. The filter now reads the flagged sensors' temporal estimates instead of their readings.</p>",
+                escape(&v.flags.join(" "))
+            )
+        }
+    );
+    // Level 1: the state before stop.
+    let before_text = vector_text(plant, &names, &d.before);
+    let waited = if d.by_scan {
+        format!(
+            "Before the scan that changed the verdict, the part was in <code>{}</code>, entered {} earlier.",
+            escape(&before_text),
+            duration(v.t - d.since)
+        )
+    } else {
+        format!(
+            "The part had been waiting in <code>{}</code> for {} when the deadline passed.",
+            escape(&before_text),
+            duration(v.t - d.since)
+        )
+    };
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"1\"><h5>State before stop</h5><p>{waited}</p>{}</section>",
+        state_table(plant, &names, &d.before, &[], None)
+    );
+    // Level 2: advanced state, the last changes.
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"2\"><h5>Advanced state: the last changes</h5>{}</section>",
+        changes_table(plant, &d.changes, v.t, &[])
+    );
+    // Level 3: hypothesis.
+    h.push_str("<section class=\"level\" data-level=\"3\"><h5>Hypothesis</h5><ul>");
+    let _ = write!(h, "<li>What the diagnoser saw: {}.</li>", escape(&v.reason));
+    if let Some(pm) = pm {
+        let key: Vec<bool> = names
+            .iter()
+            .map(|n| {
+                plant
+                    .signals
+                    .id(n)
+                    .and_then(|id| d.before.get(id.index()).copied())
+                    .unwrap_or(false)
+            })
+            .collect();
+        if let Some(state) = pm.states.iter().find(|s| s.values == key) {
+            let expected: Vec<String> = state
+                .expected
+                .iter()
+                .filter_map(|e| {
+                    let tr = pm.transitions.get(e.transition)?;
+                    Some(format!(
+                        "<code>{}</code> within [{}, {}] {} after {}",
+                        escape(&e.event),
+                        tr.guard.lo,
+                        tr.guard.hi,
+                        p.model.time_unit.name(),
+                        if e.clock == "command" {
+                            "the last command".to_string()
+                        } else {
+                            escape(&e.clock)
+                        }
+                    ))
+                })
+                .collect();
+            if !expected.is_empty() {
+                let _ = write!(
+                    h,
+                    "<li>In that state, the learned model expects {}.</li>",
+                    expected.join(", or ")
+                );
+            }
+        } else {
+            h.push_str("<li>That state was never seen while learning.</li>");
+        }
+    }
+    for l in &v.labels {
+        let _ = write!(
+            h,
+            "<li>Candidate <strong>{}</strong>: {}.</li>",
+            escape(l),
+            escape(&fault_meaning(plant, l))
+        );
+    }
+    if v.verdict == VerdictKind::Ambiguous {
+        h.push_str("<li>The candidates explain the observations equally well so far: later events will tell them apart, or a check on the machine will.</li>");
+    }
+    h.push_str("</ul></section>\n</article>\n");
+}
+
+fn filter_section(h: &mut String, p: &Page<'_>, r: &LogReplay, i: usize, ids: &[Option<String>]) {
+    let plant = p.plant;
+    let total: u64 = r.trip_counts.iter().map(|c| c.1).sum();
+    let _ = writeln!(
+        h,
+        "<section class=\"filter\" data-log=\"{i}\"><h3>Safety filter</h3>"
+    );
+    if r.rewrites.is_empty() {
+        h.push_str("<p class=\"quiet\">No flag was raised: the constraints read the sensors as they are.</p>\n");
+    }
+    for w in &r.rewrites {
+        let _ = write!(
+            h,
+            "<article class=\"rewrite\"><h4 data-zoom-log=\"{i}\" data-zoom-t=\"{}\"><code>{}</code> raised at {} <span class=\"rel\">{}</span></h4>",
+            tick_of(r, w.t),
+            escape(&w.flag),
+            escape(&absolute(r.time, w.t)),
+            offset(w.t - r.start)
+        );
+        if w.constraints.is_empty() {
+            let _ = write!(
+                h,
+                "<p>{}</p>",
+                if p.coupling == Coupling::None {
+                    "The filter was replayed without coupling: the constraints still read the sensors.".to_string()
+                } else if w.sensors.is_empty() {
+                    format!(
+                        "No constraint reads a sensor of this partition; the parts of {} go to the fallback (their outputs forced to their safe values).",
+                        escape(&w.parts.join(", "))
+                    )
+                } else {
+                    "No constraint reads the switched sensors.".to_string()
+                }
+            );
+        } else {
+            let _ = write!(
+                h,
+                "<p>From the next scan, {} read{} the temporal estimate instead of the sensor. The constraints so rewritten:</p><table class=\"rewrites\"><thead><tr><th>constraint</th><th>as written</th><th>as evaluated now</th></tr></thead><tbody>",
+                escape(&w.sensors.join(", ")),
+                if w.sensors.len() == 1 { "s" } else { "" },
+            );
+            for (name, written, now) in &w.constraints {
+                let _ = write!(
+                    h,
+                    "<tr><td><code>{}</code></td><td><code>{}</code></td><td><code>{}</code></td></tr>",
+                    escape(name),
+                    escape(written),
+                    escape(now)
+                );
+            }
+            h.push_str("</tbody></table>");
+        }
+        h.push_str("</article>\n");
+    }
+    if total == 0 {
+        h.push_str("<p class=\"quiet\">No safety constraint held in this log.</p>\n");
+    } else {
+        h.push_str("<table class=\"trips\"><thead><tr><th>constraint</th><th>times it started to hold</th><th>first</th></tr></thead><tbody>");
+        for (name, n) in r.trip_counts.iter().filter(|c| c.1 > 0) {
+            let first = r.trips.iter().find(|t| &t.constraint == name);
+            let _ = write!(
+                h,
+                "<tr><td><code>{}</code></td><td>{n}</td><td>{}</td></tr>",
+                escape(name),
+                first.map_or(String::new(), |t| format!(
+                    "<a href=\"#{}\" data-zoom-log=\"{i}\" data-zoom-t=\"{}\">{}</a>",
+                    ids[r.trips.iter().position(|x| std::ptr::eq(x, t)).unwrap_or(0)]
+                        .clone()
+                        .unwrap_or_default(),
+                    tick_of(r, t.t),
+                    escape(&absolute(r.time, t.t))
+                ))
+            );
+        }
+        h.push_str("</tbody></table>\n");
+        if r.trips.len() as u64 > ids.iter().flatten().count() as u64 {
+            let _ = writeln!(
+                h,
+                "<p class=\"quiet\">The first {} trips of each constraint are explained below; all {} are on the timelines{}.</p>",
+                super::collect::EXPLAINED_TRIPS,
+                r.trips.len(),
+                if total > r.trips.len() as u64 {
+                    format!(" (of {total}, the rest only counted)")
+                } else {
+                    String::new()
+                }
+            );
+        }
+    }
+    for (t, id) in r.trips.iter().zip(ids) {
+        if let (Some(id), Some(_)) = (id, &t.detail) {
+            trip_article(h, plant, r, i, id, t);
+        }
+    }
+    h.push_str("</section>\n");
+}
+
+fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str, t: &Trip) {
+    let Some(detail) = &t.detail else {
+        return;
+    };
+    let written = plant.constraints.iter().find(|c| c.name == t.constraint);
+    let mut read: Vec<String> = written
+        .map(|c| c.expr.names().into_iter().map(str::to_string).collect())
+        .unwrap_or_default();
+    read.sort();
+    read.dedup();
+    let signals: Vec<String> = read
+        .iter()
+        .filter(|n| plant.signals.id(n).is_some())
+        .cloned()
+        .collect();
+    let literal_names: Vec<String> = t
+        .literals
+        .iter()
+        .map(|l| {
+            let l = l.trim_start_matches('!');
+            l.split_once('(')
+                .map_or(l, |(_, rest)| rest.trim_end_matches(')'))
+                .to_string()
+        })
+        .collect();
+    let _ = writeln!(
+        h,
+        "<article class=\"explanation trip\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{}\">{} held at {} <span class=\"rel\">{}</span></h4>\n<p class=\"constraint\"><code>{}</code></p>",
+        tick_of(r, t.t),
+        escape(&t.constraint),
+        escape(&absolute(r.time, t.t)),
+        offset(t.t - r.start),
+        highlight(&t.evaluated, &t.literals)
+    );
+    if let Some(c) = written
+        && c.expr.to_string() != t.evaluated
+    {
+        let _ = write!(
+            h,
+            "<p class=\"quiet\">As written in the plant file: <code>{}</code>; the flags raised (<code>{}</code>) rewrote it.</p>",
+            escape(&c.expr.to_string()),
+            escape(&detail.flags.join(" "))
+        );
+    }
+    let actions: Vec<String> = t
+        .literals
+        .iter()
+        .filter_map(|l| filter_action(plant, l))
+        .collect();
+    // The current state is the one after the filter acted: each order the
+    // constraint forbids is put back to its safe value.
+    let mut after = detail.now.clone();
+    for l in &t.literals {
+        let (negated, body) = l
+            .strip_prefix('!')
+            .map_or((false, l.as_str()), |b| (true, b));
+        let (name, safe) =
+            if let Some(a) = body.strip_prefix("RE(").and_then(|b| b.strip_suffix(')')) {
+                (a, false)
+            } else if let Some(a) = body.strip_prefix("FE(").and_then(|b| b.strip_suffix(')')) {
+                (a, true)
+            } else {
+                (body, negated)
+            };
+        if let Some(id) = plant.signals.id(name)
+            && plant.signals.get(id).kind == SignalKind::Actuator
+            && let Some(v) = after.get_mut(id.index())
+        {
+            *v = safe;
+        }
+    }
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"0\"><h5>Current state</h5><p>The filter {}.</p>{}</section>",
+        if actions.is_empty() {
+            "sends the plant to the fallback".to_string()
+        } else {
+            escape(&actions.join("; "))
+        },
+        state_table(plant, &signals, &after, &[], Some(&detail.now)),
+    );
+    let situation: Vec<String> = t
+        .literals
+        .iter()
+        .zip(&t.estimated)
+        .map(|(l, est)| match est {
+            Some(sensor) => format!(
+                "{l} ({} by the temporal estimate of {sensor}, {})",
+                if l.starts_with('!') { "off" } else { "on" },
+                description(plant, sensor)
+            ),
+            None => literal_words(plant, l),
+        })
+        .collect();
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"1\"><h5>Projection</h5><p>Without the filter, the orders would have gone out in the forbidden situation {}: {}.</p></section>",
+        escape(&t.constraint),
+        escape(&situation.join(", "))
+    );
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"2\"><h5>State before stop</h5><p>The scan in which the constraint held; its elements are marked, and changes from the scan before are shown.</p>{}</section>",
+        state_table(
+            plant,
+            &signals,
+            &detail.now,
+            &literal_names,
+            Some(&detail.before)
+        )
+    );
+    let _ = writeln!(
+        h,
+        "<section class=\"level\" data-level=\"3\"><h5>Advanced state: the last changes</h5>{}</section>",
+        changes_table(plant, &detail.changes, t.t, &literal_names)
+    );
+    // Hypothesis, after seed 002: which sensor changes may have led the control
+    // program to the forbidden orders.
+    let last: Option<&Change> = detail.changes.last().filter(|c| c.t == t.t);
+    let recent: Vec<&Change> = detail.changes.iter().rev().take(3).collect();
+    let mut inside = Vec::new();
+    let mut outside = Vec::new();
+    for c in &recent {
+        for &(s, v) in &c.edges {
+            let name = plant.signals.name(diagnoser::SignalId(s as u32));
+            let id = diagnoser::SignalId(s as u32);
+            if plant.signals.get(id).kind != SignalKind::Sensor {
+                continue;
+            }
+            let text = edge(name, v);
+            if signals.iter().any(|n| n == name) {
+                inside.push(text);
+            } else {
+                outside.push(text);
+            }
+        }
+    }
+    h.push_str("<section class=\"level\" data-level=\"4\"><h5>Hypothesis</h5><ul>");
+    if !inside.is_empty() {
+        let _ = write!(
+            h,
+            "<li>Sensors of the constraint changed just before: <code>{}</code>. The control program may not have taken them into account to change its outputs.</li>",
+            escape(&inside.join(" "))
+        );
+    }
+    if !outside.is_empty() {
+        let _ = write!(
+            h,
+            "<li>Sensors outside the constraint changed just before: <code>{}</code>. One of them may have made the program change an output the constraint reads (a wrong receptivity).</li>",
+            escape(&outside.join(" "))
+        );
+    }
+    if inside.is_empty() && outside.is_empty() {
+        h.push_str("<li>No sensor changed just before: the orders may come from inside the PLC (a timer, a memory).</li>");
+    }
+    if last.is_none() {
+        h.push_str("<li>Nothing changed in this very scan: the constraint started to hold as time passed (an estimate's interval or a flag).</li>");
+    }
+    if !actions.is_empty() {
+        let _ = write!(
+            h,
+            "<li>Expected of the control program: what the filter did, {}.</li>",
+            escape(&actions.join("; "))
+        );
+    }
+    h.push_str("</ul></section>\n</article>\n");
+}
+
+fn models_section(h: &mut String, p: &Page<'_>) {
+    if p.pictures.is_empty() {
+        return;
+    }
+    h.push_str("<section class=\"models\" id=\"models\"><h2>Models</h2>\n<p class=\"meta\">Learned models: states are the observed vectors of a part's signals (double border: the part waits there for a command); transitions carry the learned window on their clock. Diagnosers: each state holds the candidate fault labels (red: one fault certain, amber: ambiguous).</p>\n");
+    for pics in p.pictures {
+        // Closed by default: a large diagnoser is laid out only when opened.
+        let _ = writeln!(
+            h,
+            "<details class=\"part-models\" id=\"models-{}\"><summary><h3>{}</h3></summary>",
+            escape(&pics.part),
+            escape(&pics.part)
+        );
+        for (what, pic) in [
+            ("learned model", &pics.model),
+            ("diagnoser", &pics.diagnoser),
+        ] {
+            if let Some(pic) = pic {
+                let _ = writeln!(
+                    h,
+                    "<figure class=\"model-picture\">{}<figcaption>{} of {} ({})</figcaption></figure>",
+                    pic.svg,
+                    what,
+                    escape(&pics.part),
+                    pic.by
+                );
+            }
+        }
+        h.push_str("</details>\n");
+    }
+    h.push_str("</section>\n");
+}

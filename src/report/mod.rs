@@ -1,0 +1,243 @@
+//! `gardefou report`: a self-contained HTML fault review for maintenance
+//! engineers.
+//!
+//! Each log is replayed through every part's diagnoser and the safety filter
+//! ([`collect`]); the page ([`html`]) then gives, per part, the verdict and its
+//! meaning, a timeline of the signals with the learned windows, the verdict
+//! changes, filter trips and rewrites, explanations at seed 002's levels
+//! (current state, state before stop, last changes, hypothesis), and pictures of
+//! the learned model and of the diagnoser ([`pictures`]). The file needs no
+//! network: styles, script, data and pictures are inline.
+//!
+//! It is not for live monitoring (that is `monitor`'s `/status`), nor a
+//! substitute for the JSON lines of `diagnose`, which stay the machine-readable
+//! record.
+
+pub mod collect;
+pub mod html;
+pub mod pictures;
+pub mod words;
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+
+use clap::{Args, ValueEnum};
+use diagnoser::diagnosis::DiagnoserOptions;
+use diagnoser::model::Model;
+use diagnoser::{Plant, Time, TimeUnit, time};
+use filter_coupling::filter::Coupling;
+use indicatif::{ProgressBar, ProgressStyle};
+use learning::ingest::{IngestOptions, LogFormat, open};
+
+use crate::Failure;
+
+/// How the model pictures are drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LayoutArg {
+    /// Graphviz `dot` when installed, else the built-in layout.
+    Auto,
+    /// Graphviz `dot` (an error when it cannot run).
+    Graphviz,
+    /// The built-in layered layout.
+    Builtin,
+    /// No pictures.
+    None,
+}
+
+/// Which flags the replayed filter reads (as `simulate --coupling`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CouplingArg {
+    /// The constraints read the sensors as they are.
+    None,
+    /// `def_` flags switch failed sensors to their estimates.
+    Def,
+    /// `suspect_` flags do too.
+    #[value(name = "def+suspect")]
+    DefSuspect,
+}
+
+/// Arguments of `gardefou report`.
+#[derive(Debug, Args)]
+pub struct ReportArgs {
+    /// Plant file: signals, parts, faults, partitions and constraints.
+    #[arg(long)]
+    plant: PathBuf,
+    /// Learned model (from `gardefou learn`).
+    #[arg(long)]
+    model: PathBuf,
+    /// Logs to review (any form); each is replayed from its own initial values.
+    #[arg(required = true, value_name = "LOG")]
+    logs: Vec<PathBuf>,
+    /// The HTML file to write.
+    #[arg(short, long, value_name = "FILE")]
+    output: PathBuf,
+    /// Log form (default: detected from each file's header).
+    #[arg(long)]
+    format: Option<LogFormat>,
+    /// Unit of numeric timestamps in the logs (default: the plant file's).
+    #[arg(long)]
+    time_unit: Option<TimeUnit>,
+    /// Longest an unexpected sensor edge shows before the sensor reads its real
+    /// value again (longer, it is a stuck sensor).
+    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
+    glitch_max: Time,
+    /// Time at which the logs end, when later than their last event (in the
+    /// logs' time unit).
+    #[arg(long, value_name = "TIME")]
+    end: Option<f64>,
+    /// Which flags the replayed safety filter reads.
+    #[arg(long, value_enum, default_value = "def")]
+    coupling: CouplingArg,
+    /// How the pictures of the models are drawn.
+    #[arg(long, value_enum, default_value = "auto")]
+    layout: LayoutArg,
+}
+
+/// What a report is made from, shared by `report` and `diagnose --report`.
+pub struct Request<'a> {
+    /// The plant file's path, for captions.
+    pub plant_path: &'a Path,
+    /// The model file's path, for captions.
+    pub model_path: &'a Path,
+    /// The logs.
+    pub logs: &'a [PathBuf],
+    /// How they are read.
+    pub ingest: IngestOptions,
+    /// Diagnoser settings.
+    pub options: DiagnoserOptions,
+    /// `--end`, in nanoseconds.
+    pub end: Option<Time>,
+    /// Which flags the filter reads.
+    pub coupling: Coupling,
+    /// How pictures are drawn (`None`: no pictures).
+    pub layout: Option<pictures::Layout>,
+}
+
+fn bad(e: impl std::fmt::Display) -> Failure {
+    Failure::BadInput(e.to_string())
+}
+
+/// Runs `gardefou report`.
+pub fn run(args: ReportArgs) -> Result<(), Failure> {
+    let plant = Plant::from_path(&args.plant).map_err(bad)?;
+    let model = Model::from_path(&args.model).map_err(bad)?;
+    let unit = args.time_unit.unwrap_or(plant.time_unit);
+    let request = Request {
+        plant_path: &args.plant,
+        model_path: &args.model,
+        logs: &args.logs,
+        ingest: IngestOptions {
+            format: args.format,
+            time_unit: unit,
+            ..IngestOptions::default()
+        },
+        options: DiagnoserOptions {
+            glitch_max: args.glitch_max,
+        },
+        end: args.end.map(|e| (e * unit.nanos() as f64).round() as Time),
+        coupling: match args.coupling {
+            CouplingArg::None => Coupling::None,
+            CouplingArg::Def => Coupling::Flags,
+            CouplingArg::DefSuspect => Coupling::FlagsAndSuspects,
+        },
+        layout: match args.layout {
+            LayoutArg::Auto => Some(pictures::Layout::Auto),
+            LayoutArg::Graphviz => Some(pictures::Layout::Graphviz),
+            LayoutArg::Builtin => Some(pictures::Layout::BuiltIn),
+            LayoutArg::None => None,
+        },
+    };
+    let page = build(&plant, &model, &request)?;
+    write_atomically(&args.output, page.as_bytes())?;
+    eprintln!(
+        "report written to {} ({} bytes)",
+        args.output.display(),
+        page.len()
+    );
+    Ok(())
+}
+
+/// Replays every log of `request` and renders the page.
+pub fn build(plant: &Plant, model: &Model, request: &Request<'_>) -> Result<String, Failure> {
+    let bar = if std::io::stderr().is_terminal() {
+        let bar = ProgressBar::new_spinner();
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} reviewing {msg}: {human_pos} events ({per_sec})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+        );
+        bar
+    } else {
+        ProgressBar::hidden()
+    };
+    let mut replays = Vec::new();
+    for path in request.logs {
+        let stream = open(path, plant, &request.ingest).map_err(bad)?;
+        let name = path.display().to_string();
+        bar.set_message(name.clone());
+        let setup = collect::Setup {
+            plant,
+            model,
+            options: &request.options,
+            coupling: request.coupling,
+        };
+        let replay = collect::replay(setup, stream, &name, request.end, |n| bar.set_position(n))
+            .map_err(|e| bad(format!("{name}: {e}")))?;
+        replays.push(replay);
+    }
+    bar.finish_and_clear();
+    let pictures = match request.layout {
+        Some(layout) => html::pictures(plant, model, &request.options, layout)
+            .map_err(|e| bad(format!("{}: {e}", request.model_path.display())))?,
+        None => Vec::new(),
+    };
+    Ok(html::page(&html::Page {
+        plant,
+        model,
+        plant_path: request.plant_path,
+        model_path: request.model_path,
+        coupling: request.coupling,
+        replays: &replays,
+        pictures: &pictures,
+    }))
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same directory, so
+/// that a failure never leaves a half-written report in place of a good one.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let fail = |e: std::io::Error| Failure::Io(format!("cannot write {}: {e}", path.display()));
+    if path.is_dir() {
+        return Err(Failure::BadInput(format!(
+            "{}: is a directory, not a file to write the report to",
+            path.display()
+        )));
+    }
+    let mut tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            Failure::BadInput(format!(
+                "{}: no such directory to write the report in",
+                dir.display()
+            ))
+        } else {
+            fail(e)
+        }
+    })?;
+    tmp.write_all(bytes).map_err(fail)?;
+    tmp.flush().map_err(fail)?;
+    // A temporary file is private; a report is an ordinary document.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(path).map_or(0o644, |m| m.permissions().mode() & 0o777);
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(mode))
+            .map_err(fail)?;
+    }
+    tmp.persist(path).map_err(|e| fail(e.error))?;
+    Ok(())
+}
