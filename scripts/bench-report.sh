@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Cost of `gardefou report` on a day-long log, in a release build.
 #
-# 1. One simulated day of the sorting line, F2 injected at noon, is diagnosed
+# 1. One simulated day of the sorting line, F2 injected at 23:00, is diagnosed
 #    with the model learned from the shipped normal run and written as the HTML
 #    report: wall time and peak RSS of that, and the report's size.
 # 2. The report is opened five times in headless Chromium
@@ -49,16 +49,16 @@ quiet() {
 cargo build --release -q
 bin=target/release/gardefou
 
-quiet "$bin" simulate --plant sorting --duration 24h --seed 7 --fault F2@43200s --out "$dir/day"
+quiet "$bin" simulate --plant sorting --duration 24h --seed 7 --fault F2@82800s --out "$dir/day"
 events=$(($(wc -l <"$dir/day/events.csv") - 1))
-echo "day: $events events (sorting line, 24 h, seed 7, F2 at 12:00)"
+echo "day: $events events (sorting line, 24 h, seed 7, F2 at 23:00)"
 
 quiet "$bin" learn --plant datasets/data/sorting/normal/plant.toml -q \
   -o "$dir/model.json" datasets/data/sorting/normal/events.csv
 
 report=$dir/report.html
 if ! /usr/bin/time -v "$bin" report --plant "$dir/day/plant.toml" --model "$dir/model.json" \
-  "$dir/day/events.csv" -o "$report" 2>"$dir/time.txt" >/dev/null; then
+  --end 86400000 "$dir/day/events.csv" -o "$report" 2>"$dir/time.txt" >/dev/null; then
   cat "$dir/time.txt" >&2
   die "gardefou report failed"
 fi

@@ -141,14 +141,16 @@ pub fn page(p: &Page<'_>) -> String {
     for (i, r) in p.replays.iter().enumerate() {
         data_logs.push(log_section(&mut h, p, i, r));
     }
-    models_section(&mut h, p);
-    h.push_str("</main>\n");
+    // The timelines are drawn before the browser reads the (large, folded)
+    // model pictures, so that the page is usable as soon as possible.
     let data = json!({ "plant": p.plant.name, "logs": data_logs });
     let text = data.to_string().replace("</", "<\\/");
     let _ = writeln!(
         h,
-        "<script type=\"application/json\" id=\"gardefou-data\">{text}</script>\n<script>\n{JS}\n</script>\n</body>\n</html>"
+        "<script type=\"application/json\" id=\"gardefou-data\">{text}</script>\n<script>\n{JS}\n</script>"
     );
+    models_section(&mut h, p);
+    h.push_str("</main>\n</body>\n</html>\n");
     h
 }
 

@@ -41,6 +41,18 @@
     const msg = (err && err.message) || String(err);
     if (!root.dataset.renderError) root.dataset.renderError = msg;
     console.error('gardefou report:', err);
+    // Say so where the timelines should be, rather than leave blank space.
+    try {
+      for (const host of document.querySelectorAll('.timeline-host')) {
+        if (host.childElementCount) continue;
+        const p = document.createElement('p');
+        p.className = 'timeline-missing';
+        p.textContent = 'The timeline could not be drawn: ' + msg;
+        host.appendChild(p);
+      }
+    } catch (e) {
+      // the report itself is what failed: nothing more to show
+    }
   }
 
   // Every entry point (init, event handlers, animation frames) goes through this,
@@ -448,7 +460,11 @@
       const t = k * stepT;
       const x = f1(g.x(t));
       s += `<line class="grid" x1="${x}" x2="${x}" y1="${AXIS_H - 8}" y2="${height - BOTTOM_PAD}"/>`;
-      s += `<text class="tick" x="${x}" y="${AXIS_H - 11}">${fmtOffset(log, t, dec)}</text>`;
+      const label = fmtOffset(log, t, dec);
+      // A label at the right end is anchored inward so that it is not cut.
+      const half = estimateTextWidth(label, 10) / 2;
+      const anchor = g.x(t) + half > g.width - 2 ? ' text-anchor="end"' : '';
+      s += `<text class="tick" x="${x}" y="${AXIS_H - 11}"${anchor}>${label}</text>`;
     }
     s += '</g>';
     return s;
@@ -878,7 +894,10 @@
         const xb = Math.min(LABEL_W + g.plotW + 1, g.x(w.b));
         s +=
           `<rect class="window" x="${f1(xa)}" y="${y - 2}" width="${f1(Math.max(1, xb - xa))}" height="${BAND_H + 3}">` +
-          `<title>${esc(`${w.event || w.signal} expected in [${w.lo}, ${w.hi}] after the last command (state ${w.state})`)}</title></rect>`;
+          `<title>${esc(
+            `${w.event || w.signal} expected ${fmtSpan(log, Number(w.lo) || 0)} to ${fmtSpan(log, Number(w.hi) || 0)} ` +
+              `after the last command (state ${w.state})`
+          )}</title></rect>`;
       }
       s += drawBandShapes(sig, g, y).svg;
       s += '</g></g>';
@@ -895,7 +914,6 @@
     svg.setAttribute('viewBox', `0 0 ${width} ${lay.height}`);
     svg.innerHTML = s;
     tl.cursor = svg.lastElementChild;
-    tl.windowsShown = wins ? wins.length : -1;
     svg.dataset.windows = wins ? 'shown' : 'too-many';
     showCursor(tl, log.hoverT);
   }
