@@ -269,7 +269,18 @@ fn report_renders_in_a_real_browser() {
     let bands = strings(&timeline["bands"]);
     for signal in ["C4", "C5", "A4"] {
         assert!(bands.contains(&signal), "no {signal} band; {ctx}");
+        // Each band draws the signal, not only its name.
+        let shapes = timeline["shapes"][signal].as_u64().unwrap_or(0);
+        assert!(shapes > 0, "the {signal} band draws nothing; {ctx}");
     }
+    // The timeline itself, screenshot alone against its card, is drawn.
+    let t = &seen["turntable_timeline"];
+    let drawn = t["non_background_fraction"].as_f64().unwrap_or(0.0);
+    let colours = t["distinct_colours"].as_u64().unwrap_or(0);
+    assert!(
+        drawn > 0.05 && colours >= 4,
+        "the turntable's timeline is blank; {ctx}"
+    );
 }
 
 #[test]

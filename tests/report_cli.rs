@@ -320,3 +320,42 @@ fn summary_is_plain_in_a_pipe() {
             .any(|l| l.starts_with("turntable") && l.contains("F2"))
     );
 }
+
+#[test]
+fn summary_is_coloured_on_a_terminal() {
+    // `script` (util-linux) runs the command on a real pseudo-terminal.
+    if Command::new("script").arg("--version").output().is_err() {
+        eprintln!("skipping: `script` (util-linux) is not installed");
+        return;
+    }
+    let command = format!(
+        "{} diagnose --plant {} --model {} --summary {}",
+        env!("CARGO_BIN_EXE_gardefou"),
+        plant(),
+        model(),
+        data("sorting/F2/events.csv")
+    );
+    let o = Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .env_remove("NO_COLOR")
+        .output()
+        .expect("runs script");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let turntable = text
+        .lines()
+        .find(|l| l.contains("turntable"))
+        .unwrap_or_else(|| panic!("no turntable row: {text:?}"));
+    assert!(
+        turntable.starts_with("\x1b[1;31mturntable") && turntable.contains("F2"),
+        "certain is red: {turntable:?}"
+    );
+    let feed = text
+        .lines()
+        .find(|l| l.contains("feed"))
+        .unwrap_or_else(|| panic!("no feed row: {text:?}"));
+    assert!(
+        feed.starts_with("\x1b[32mfeed"),
+        "normal is green: {feed:?}"
+    );
+}

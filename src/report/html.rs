@@ -33,7 +33,14 @@ pub struct PartPictures {
     pub model: Option<Picture>,
     /// The diagnoser built from it.
     pub diagnoser: Option<Picture>,
+    /// Why the diagnoser is not drawn, when it is not.
+    pub note: Option<String>,
 }
+
+/// Largest diagnoser drawn: beyond, no layout keeps it legible on a page, and
+/// Graphviz alone would take minutes.
+const DRAWN_STATES: usize = 400;
+const DRAWN_TRANSITIONS: usize = 1_500;
 
 /// Draws every part's learned model and diagnoser.
 pub fn pictures(
@@ -56,15 +63,27 @@ pub fn pictures(
         };
         let mut engine = engine.clone();
         let compiled = Compiled::explore(&mut engine, 2);
-        let drawn = pictures::render(
-            &compiled.to_dot(&engine, model.time_unit),
-            layout,
-            &format!("d{k}-"),
-        )?;
+        let size = compiled.size();
+        let (drawn, note) = if size.states <= DRAWN_STATES && size.transitions <= DRAWN_TRANSITIONS
+        {
+            let picture = pictures::render(
+                &compiled.to_dot(&engine, model.time_unit),
+                layout,
+                &format!("d{k}-"),
+            )?;
+            (Some(picture), None)
+        } else {
+            let note = format!(
+                "The diagnoser of {name} has {} states and {} transitions: too many to draw legibly here. `gardefou check --dot DIR` writes it for Graphviz.",
+                size.states, size.transitions
+            );
+            (None, Some(note))
+        };
         out.push(PartPictures {
             part: name,
             model: learned,
-            diagnoser: Some(drawn),
+            diagnoser: drawn,
+            note,
         });
     }
     Ok(out)
@@ -1014,6 +1033,9 @@ fn models_section(h: &mut String, p: &Page<'_>) {
                     pic.by
                 );
             }
+        }
+        if let Some(note) = &pics.note {
+            let _ = writeln!(h, "<p class=\"quiet\">{}</p>", escape(note));
         }
         h.push_str("</details>\n");
     }

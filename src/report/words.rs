@@ -260,6 +260,27 @@ mod tests {
         assert_eq!(duration(185 * 1_000_000_000), "3 min 5 s");
     }
 
+    proptest::proptest! {
+        /// Highlighting only adds marks: without them, the text is the escaped
+        /// expression, whatever the expression and the literals.
+        #[test]
+        fn highlight_only_adds_marks(
+            expr in "[!&|() A-Z0-9_<>\"é]{0,40}",
+            literals in proptest::collection::vec("!?[A-Z]{1,2}[0-9]?", 0..4),
+        ) {
+            let out = highlight(&expr, &literals);
+            let plain = out
+                .replace("<mark class=\"literal\">", "")
+                .replace("</mark>", "");
+            proptest::prop_assert_eq!(plain, escape(&expr));
+            // A mark holds a literal.
+            for piece in out.split("<mark class=\"literal\">").skip(1) {
+                let inner = piece.split("</mark>").next().unwrap_or("");
+                proptest::prop_assert!(literals.iter().any(|l| escape(l) == inner));
+            }
+        }
+    }
+
     #[test]
     fn escape_covers_markup() {
         assert_eq!(escape("a<b & \"c\">"), "a&lt;b &amp; &quot;c&quot;&gt;");

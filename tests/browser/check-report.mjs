@@ -148,6 +148,13 @@ async function inspect(browser, report, shot) {
       log: num(svg.dataset.log),
       part: svg.dataset.part ?? null,
       bands: [...svg.querySelectorAll('g.band[data-signal]')].map((g) => g.dataset.signal),
+      // Shapes drawn per band besides its label: an empty band draws none.
+      shapes: Object.fromEntries(
+        [...svg.querySelectorAll('g.band[data-signal]')].map((g) => [
+          g.dataset.signal,
+          g.querySelectorAll('rect, path').length,
+        ]),
+      ),
     }));
     // The page background as RGB, whatever CSS colour syntax the stylesheet uses:
     // let a canvas resolve it. Transparent body → the root's → white.
@@ -174,6 +181,31 @@ async function inspect(browser, report, shot) {
   await page.screenshot({ path: shot, fullPage: true, timeout: 120_000 });
   const screenshot = await measureScreenshot(context, shot, dom.background);
 
+  // The turntable's timeline alone, against its own card: a page of empty cards
+  // would pass the whole-page measure, not this one.
+  let turntableTimeline = null;
+  const svg = page.locator('svg.timeline[data-part="turntable"]').first();
+  if ((await svg.count()) > 0) {
+    const cardBackground = await svg.evaluate((el) => {
+      const c = document.createElement('canvas').getContext('2d');
+      let node = el;
+      while (node && node instanceof Element) {
+        const bg = getComputedStyle(node).backgroundColor;
+        c.clearRect(0, 0, 1, 1);
+        c.fillStyle = '#000';
+        c.fillStyle = bg;
+        c.fillRect(0, 0, 1, 1);
+        const [r, g, b, a] = c.getImageData(0, 0, 1, 1).data;
+        if (a > 0 && bg !== 'rgba(0, 0, 0, 0)') return [r, g, b];
+        node = node.parentElement;
+      }
+      return [255, 255, 255];
+    });
+    const elementShot = shot.replace(/\.png$/, '') + '-turntable.png';
+    await svg.screenshot({ path: elementShot, timeout: 60_000 });
+    turntableTimeline = await measureScreenshot(context, elementShot, cardBackground);
+  }
+
   return {
     rendered_ms: renderedMs,
     render_error: renderError,
@@ -183,6 +215,7 @@ async function inspect(browser, report, shot) {
     page_errors: pageErrors,
     network,
     screenshot,
+    turntable_timeline: turntableTimeline,
     parts: dom.parts,
     timelines: dom.timelines,
     explanations: dom.explanations,
