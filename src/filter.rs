@@ -15,6 +15,7 @@ use filter_coupling::st::{StOptions, generate};
 use learning::ingest::{IngestOptions, LogFormat, open};
 
 use crate::Failure;
+use crate::simulate::CouplingArg;
 
 /// Arguments of `gardefou filter`.
 #[derive(Debug, Args)]
@@ -60,19 +61,6 @@ struct CheckArgs {
     /// Unit of numeric timestamps in the logs (default: the plant file's).
     #[arg(long)]
     time_unit: Option<TimeUnit>,
-}
-
-/// How the generated filter uses the diagnosers' flags.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-enum CouplingArg {
-    /// The constraints read the sensors as they are.
-    None,
-    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
-    /// element partition's part to its fallback.
-    Def,
-    /// As `def`, and `suspect_<partition>` also switches a sensor to its estimate.
-    #[value(name = "def+suspect")]
-    DefSuspect,
 }
 
 /// Arguments of `gardefou filter st`.

@@ -38,7 +38,8 @@ pub enum ControlKind {
     Constraints,
 }
 
-/// How the virtual PLC's filter uses the flags clients write.
+/// How a filter uses the diagnosers' flags (the virtual PLC's, the generated
+/// Structured Text's, the report's replay).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CouplingArg {
     /// The constraints read the sensors as they are.

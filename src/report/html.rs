@@ -360,15 +360,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
             }
         }
         // Signals and windows for the timeline.
-        let signals: Vec<String> = match pm {
-            Some(pm) => pm.signals.clone(),
-            None => part
-                .actuators
-                .iter()
-                .chain(&part.sensors)
-                .map(|&s| plant.signals.name(s).to_string())
-                .collect(),
-        };
+        let signals = signal_names(plant, part, pm);
         let signals_data: Vec<Value> = signals
             .iter()
             .filter_map(|name| {
@@ -506,6 +498,24 @@ fn windows(model: &Model, pm: &PartModel, tick: Time) -> Value {
     Value::Object(out)
 }
 
+/// A part's signals in its model's order (actuators first), or the plant
+/// file's when the model lacks the part.
+fn signal_names(
+    plant: &Plant,
+    part: &diagnoser::plant::Part,
+    pm: Option<&PartModel>,
+) -> Vec<String> {
+    match pm {
+        Some(pm) => pm.signals.clone(),
+        None => part
+            .actuators
+            .iter()
+            .chain(&part.sensors)
+            .map(|&s| plant.signals.name(s).to_string())
+            .collect(),
+    }
+}
+
 /// A table of signals: name, value, meaning; `marked` ones highlighted,
 /// `changed` ones flagged.
 fn state_table(
@@ -622,15 +632,7 @@ fn detection_article(
     let plant = p.plant;
     let part = &plant.parts[d.part];
     let v = &d.verdict;
-    let names: Vec<String> = match pm {
-        Some(pm) => pm.signals.clone(),
-        None => part
-            .actuators
-            .iter()
-            .chain(&part.sensors)
-            .map(|&s| plant.signals.name(s).to_string())
-            .collect(),
-    };
+    let names = signal_names(plant, part, pm);
     let _ = writeln!(
         h,
         "<article class=\"explanation detection verdict-{vk}\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\">{part}: {vk} {labels} at {when} <span class=\"rel\">{rel}</span></h4>\n<p class=\"reason\">{reason}</p>",
@@ -646,7 +648,7 @@ fn detection_article(
     let _ = writeln!(
         h,
         "<section class=\"level\" data-level=\"0\"><h5>Current state</h5>{}{}</section>",
-        state_table(plant, &names, &d.now, &[], None),
+        state_table(plant, &names, &d.now, &[], Some(&d.before)),
         if v.flags.is_empty() {
             String::new()
         } else {

@@ -30,6 +30,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use learning::ingest::{IngestOptions, LogFormat, open};
 
 use crate::Failure;
+use crate::simulate::CouplingArg;
 
 /// How the model pictures are drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -42,18 +43,6 @@ pub enum LayoutArg {
     Builtin,
     /// No pictures.
     None,
-}
-
-/// Which flags the replayed filter reads (as `simulate --coupling`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum CouplingArg {
-    /// The constraints read the sensors as they are.
-    None,
-    /// `def_` flags switch failed sensors to their estimates.
-    Def,
-    /// `suspect_` flags do too.
-    #[value(name = "def+suspect")]
-    DefSuspect,
 }
 
 /// Arguments of `gardefou report`.
