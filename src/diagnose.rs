@@ -12,34 +12,66 @@ use learning::ingest::{IngestOptions, LogFormat, open};
 
 use crate::Failure;
 
-/// Arguments of `gardefou diagnose`.
+/// What `diagnose` and `report` both read: the plant, the model, the logs, and
+/// how to replay them.
 #[derive(Debug, Args)]
-pub struct DiagnoseArgs {
+pub struct ReplayArgs {
     /// Plant file: signals, parts, faults and partitions.
     #[arg(long)]
-    plant: PathBuf,
+    pub plant: PathBuf,
     /// Learned model (from `gardefou learn`).
     #[arg(long)]
-    model: PathBuf,
+    pub model: PathBuf,
     /// Logs to replay (any form); each is replayed from its own initial values.
     #[arg(required = true, value_name = "LOG")]
-    logs: Vec<PathBuf>,
+    pub logs: Vec<PathBuf>,
     /// Log form (default: detected from each file's header): events-csv,
     /// intervals-csv, scans-csv, events-parquet, intervals-parquet, scans-parquet,
     /// candump or vcd.
     #[arg(long)]
-    format: Option<LogFormat>,
+    pub format: Option<LogFormat>,
     /// Unit of numeric timestamps in the logs (default: the plant file's).
     #[arg(long)]
-    time_unit: Option<TimeUnit>,
+    pub time_unit: Option<TimeUnit>,
     /// Longest an unexpected sensor edge shows before the sensor reads its real
     /// value again (longer, it is a stuck sensor).
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
-    glitch_max: Time,
+    pub glitch_max: Time,
     /// Time at which the logs end, when later than their last event (in the
     /// logs' time unit): deadlines up to it still count. Default: the last event.
     #[arg(long, value_name = "TIME")]
-    end: Option<f64>,
+    pub end: Option<f64>,
+}
+
+impl ReplayArgs {
+    /// How the logs are read.
+    pub fn ingest(&self, plant: &Plant) -> IngestOptions {
+        IngestOptions {
+            format: self.format,
+            time_unit: self.time_unit.unwrap_or(plant.time_unit),
+            ..IngestOptions::default()
+        }
+    }
+
+    /// The diagnosers' settings.
+    pub fn options(&self) -> DiagnoserOptions {
+        DiagnoserOptions {
+            glitch_max: self.glitch_max,
+        }
+    }
+
+    /// `--end` in nanoseconds.
+    pub fn end(&self, plant: &Plant) -> Option<Time> {
+        let unit = self.time_unit.unwrap_or(plant.time_unit);
+        self.end.map(|e| (e * unit.nanos() as f64).round() as Time)
+    }
+}
+
+/// Arguments of `gardefou diagnose`.
+#[derive(Debug, Args)]
+pub struct DiagnoseArgs {
+    #[command(flatten)]
+    replay: ReplayArgs,
     /// Print, per part, a table of the final verdict, first detection time and
     /// flags, instead of the verdict changes.
     #[arg(long)]
@@ -76,21 +108,12 @@ pub fn verdict_line(v: &Verdict, time: TimeFormat, log: Option<&str>) -> String 
 
 /// Runs `gardefou diagnose`.
 pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
-    let model = Model::from_path(&args.model).map_err(bad)?;
-    let mut diagnoser = PlantDiagnoser::new(
-        &plant,
-        &model,
-        &DiagnoserOptions {
-            glitch_max: args.glitch_max,
-        },
-    )
-    .map_err(|e| bad(format!("{}: {e}", args.model.display())))?;
-    let ingest = IngestOptions {
-        format: args.format,
-        time_unit: args.time_unit.unwrap_or(plant.time_unit),
-        ..IngestOptions::default()
-    };
+    let replay = &args.replay;
+    let plant = Plant::from_path(&replay.plant).map_err(bad)?;
+    let model = Model::from_path(&replay.model).map_err(bad)?;
+    let mut diagnoser = PlantDiagnoser::new(&plant, &model, &replay.options())
+        .map_err(|e| bad(format!("{}: {e}", replay.model.display())))?;
+    let ingest = replay.ingest(&plant);
     let bar = if std::io::stderr().is_terminal() {
         let bar = ProgressBar::new_spinner();
         bar.set_style(
@@ -103,9 +126,9 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     };
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
-    let several = args.logs.len() > 1;
+    let several = replay.logs.len() > 1;
     let mut summaries: Vec<(String, TimeFormat, Vec<PartSummary>)> = Vec::new();
-    for path in &args.logs {
+    for path in &replay.logs {
         let stream = open(path, &plant, &ingest).map_err(bad)?;
         let time = stream.time;
         let name = path.display().to_string();
@@ -133,21 +156,11 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
             read += batch.len() as u64;
             bar.set_position(read);
         }
-        if let Some(end) = args.end {
-            let unit = args.time_unit.unwrap_or(plant.time_unit);
-            let end = (end * unit.nanos() as f64).round() as diagnoser::Time;
+        if let Some(end) = replay.end(&plant) {
             last = last.max(end);
         }
         let mut summary = diagnoser.finish(last, &mut emit);
-        let view = diagnoser.plant_view(last);
-        summary.push(PartSummary {
-            part: view.part,
-            verdict: view.verdict,
-            labels: view.labels,
-            detected: summary.iter().filter_map(|p| p.detected).min(),
-            flags: view.flags,
-            changes: 0,
-        });
+        summary.push(diagnoser.plant_summary(last, &summary));
         if let Some(e) = write_err {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
                 return Ok(());
@@ -163,21 +176,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     }
     if let Some(path) = &args.report {
         let request = crate::report::Request {
-            plant_path: &args.plant,
-            model_path: &args.model,
-            logs: &args.logs,
-            ingest: IngestOptions {
-                format: args.format,
-                time_unit: args.time_unit.unwrap_or(plant.time_unit),
-                ..IngestOptions::default()
-            },
-            options: DiagnoserOptions {
-                glitch_max: args.glitch_max,
-            },
-            end: args.end.map(|e| {
-                let unit = args.time_unit.unwrap_or(plant.time_unit);
-                (e * unit.nanos() as f64).round() as diagnoser::Time
-            }),
+            replay,
             coupling: filter_coupling::filter::Coupling::Flags,
             layout: Some(crate::report::pictures::Layout::Auto),
         };
@@ -212,10 +211,7 @@ fn write_summary(
             .map(|p| {
                 [
                     p.part.clone(),
-                    serde_json::to_value(p.verdict)
-                        .ok()
-                        .and_then(|v| v.as_str().map(str::to_string))
-                        .unwrap_or_default(),
+                    p.verdict.name().to_string(),
                     p.labels.join(" "),
                     p.detected.map_or("-".to_string(), |t| time.format(t)),
                     if p.flags.is_empty() {

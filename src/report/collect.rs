@@ -119,10 +119,12 @@ pub struct LogReplay {
     pub edges: Vec<Vec<Time>>,
     /// Events read.
     pub events: u64,
+    /// The unit of the page's timeline data, in nanoseconds: the largest of
+    /// 1 ms, 1 µs and 1 ns that divides every edge's offset from `start`,
+    /// keeping the embedded numbers short.
+    pub tick: Time,
     /// Every verdict change of every part (the plant view excluded), in order.
     pub verdicts: Vec<Verdict>,
-    /// The plant view's changes.
-    pub plant_verdicts: Vec<Verdict>,
     /// Per part, then the plant view last.
     pub summary: Vec<PartSummary>,
     /// Verdict changes away from normal, or between fault labels.
@@ -170,7 +172,6 @@ pub fn replay(
     let mut r = Replayer {
         plant,
         filter,
-        coupling,
         part_of_signal: part_of_signal(plant),
         constraint_parts: constraint_parts(plant),
         io: io.clone(),
@@ -190,8 +191,8 @@ pub fn replay(
             initial: io,
             edges: vec![Vec::new(); n],
             events: 0,
+            tick: 1,
             verdicts: Vec::new(),
-            plant_verdicts: Vec::new(),
             summary: Vec::new(),
             detections: Vec::new(),
             trips: Vec::new(),
@@ -234,24 +235,25 @@ pub fn replay(
     if !r.raised.is_empty() {
         r.every_scan_until(end + 1);
     }
-    let view = diagnoser.plant_view(end);
-    summary.push(PartSummary {
-        part: view.part,
-        verdict: view.verdict,
-        labels: view.labels,
-        detected: summary.iter().filter_map(|p| p.detected).min(),
-        flags: view.flags,
-        changes: 0,
-    });
+    summary.push(diagnoser.plant_summary(end, &summary));
     r.out.summary = summary;
     r.out.end = end;
+    r.out.tick = [1_000_000, 1_000]
+        .into_iter()
+        .find(|tick| {
+            r.out
+                .edges
+                .iter()
+                .flatten()
+                .all(|t| (t - r.out.start) % tick == 0)
+        })
+        .unwrap_or(1);
     Ok(r.out)
 }
 
 struct Replayer<'a> {
     plant: &'a Plant,
     filter: Filter,
-    coupling: Coupling,
     part_of_signal: Vec<Option<usize>>,
     constraint_parts: HashMap<String, Vec<String>>,
     /// Every signal after the last completed scan.
@@ -288,56 +290,53 @@ impl Replayer<'_> {
             self.every_scan_until(t);
         }
         let before = self.io.clone();
-        let mut change = Change {
-            t,
-            edges: Vec::new(),
-        };
         for e in self.pending.drain(..) {
-            let i = e.signal.index();
-            if let Some(v) = self.io.get_mut(i)
-                && *v != e.value
-            {
+            if let Some(v) = self.io.get_mut(e.signal.index()) {
                 *v = e.value;
-                self.out.edges[i].push(t);
-                change.edges.push((i, e.value));
             }
         }
-        change.edges.sort_unstable();
-        change.edges.dedup_by_key(|e| e.0);
-        if !change.edges.is_empty() {
-            let mut touched: Vec<usize> = change
+        // The scan's edges: what differs from the scan before (a signal that
+        // went and came back within the scan did not change).
+        let change = Change {
+            t,
+            edges: (0..self.io.len())
+                .filter(|&i| self.io[i] != before[i])
+                .map(|i| (i, self.io[i]))
+                .collect(),
+        };
+        for &(i, _) in &change.edges {
+            self.out.edges[i].push(t);
+        }
+        let mut touched: Vec<usize> = change
+            .edges
+            .iter()
+            .filter_map(|&(i, _)| self.part_of_signal[i])
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
+        for &p in &touched {
+            let edges: Vec<(usize, bool)> = change
                 .edges
                 .iter()
-                .filter_map(|&(i, _)| self.part_of_signal[i])
+                .copied()
+                .filter(|&(i, _)| self.part_of_signal[i] == Some(p))
                 .collect();
-            touched.sort_unstable();
-            touched.dedup();
-            for p in touched {
-                let edges: Vec<(usize, bool)> = change
-                    .edges
-                    .iter()
-                    .copied()
-                    .filter(|&(i, _)| self.part_of_signal[i] == Some(p))
-                    .collect();
-                push_bounded(&mut self.part_history[p], Change { t, edges });
-            }
+            push_bounded(&mut self.part_history[p], Change { t, edges });
+        }
+        if !change.edges.is_empty() {
             push_bounded(&mut self.plant_history, change);
         }
-        // The scan's own verdicts see the state after it and before it.
+        // The scan's own verdicts see the state after it and before it, and
+        // `part_since` still holds the entry into the state before it.
         for v in later.drain(..) {
             self.verdict(v, &before, true);
         }
-        let now = self.io.clone();
+        let now = std::mem::take(&mut self.io);
         self.check(t, &before, &now);
+        self.io = now;
         // Parts whose signals changed entered a new state.
-        if let Some(last) = self.plant_history.back()
-            && last.t == t
-        {
-            for &(i, _) in &last.edges {
-                if let Some(p) = self.part_of_signal[i] {
-                    self.part_since[p] = t;
-                }
-            }
+        for p in touched {
+            self.part_since[p] = t;
         }
     }
 
@@ -354,8 +353,8 @@ impl Replayer<'_> {
     }
 
     fn verdict(&mut self, v: Verdict, before: &[bool], by_scan: bool) {
+        // The plant view repeats a part's verdict; the summary keeps its last.
         if v.part == diagnoser::diagnosis::fusion::PLANT_VIEW {
-            self.out.plant_verdicts.push(v);
             return;
         }
         let Some(p) = self.plant.parts.iter().position(|x| x.name == v.part) else {
@@ -365,7 +364,6 @@ impl Replayer<'_> {
         let interesting = v.verdict != VerdictKind::Normal
             && previous.is_none_or(|x| x.labels != v.labels || x.verdict != v.verdict);
         if interesting {
-            // Still the entry into the state before the scan, if a scan caused it.
             let since = self.part_since[p];
             self.out.detections.push(Detection {
                 verdict: v.clone(),
@@ -379,16 +377,17 @@ impl Replayer<'_> {
         }
         for flag in &v.flags {
             if !self.raised.contains(flag) {
-                self.raise(flag, v.t);
+                self.raise(flag, v.t, &v.part);
             }
         }
         self.out.verdicts.push(v);
     }
 
-    /// A `def_` flag raised at `t`: the filter switches from the next scan.
-    fn raise(&mut self, flag: &str, t: Time) {
+    /// A `def_` flag raised at `t` by `part`'s diagnoser: the filter switches
+    /// from the next scan.
+    fn raise(&mut self, flag: &str, t: Time, part: &str) {
         self.raised.push(flag.to_string());
-        let coupled = self.coupling != Coupling::None && self.filter.set(flag, true);
+        let coupled = self.filter.coupling() != Coupling::None && self.filter.set(flag, true);
         let partition = flag.strip_prefix("def_").unwrap_or(flag);
         let sensors: Vec<String> = self
             .filter
@@ -423,15 +422,8 @@ impl Replayer<'_> {
             .map(|p| self.plant.parts[p].name.clone())
             .collect();
         if parts.is_empty() {
-            // An actuator or element partition: the parts its faults belong to.
-            parts.extend(
-                self.out
-                    .verdicts
-                    .iter()
-                    .chain(self.out.detections.iter().map(|d| &d.verdict))
-                    .filter(|v| v.flags.iter().any(|f| f == flag))
-                    .map(|v| v.part.clone()),
-            );
+            // An actuator or element partition: the part whose diagnoser raised it.
+            parts.push(part.to_string());
         }
         parts.sort();
         parts.dedup();

@@ -4,7 +4,6 @@
 //! the embedded data (`report.js`), so that a day-long log zooms from the whole
 //! day down to single scans without the file holding one picture per zoom.
 
-use std::collections::HashMap;
 use std::fmt::Write;
 use std::path::Path;
 
@@ -107,14 +106,6 @@ pub struct Page<'a> {
     pub pictures: &'a [PartPictures],
 }
 
-fn verdict_name(v: VerdictKind) -> &'static str {
-    match v {
-        VerdictKind::Normal => "normal",
-        VerdictKind::Certain => "certain",
-        VerdictKind::Ambiguous => "ambiguous",
-    }
-}
-
 /// The whole page.
 pub fn page(p: &Page<'_>) -> String {
     let mut h = String::with_capacity(1 << 20);
@@ -176,7 +167,7 @@ pub fn page(p: &Page<'_>) -> String {
 fn plant_line(r: &LogReplay) -> String {
     match r.summary.last() {
         Some(s) if s.verdict != VerdictKind::Normal => {
-            format!("{} {}", verdict_name(s.verdict), s.labels.join(", "))
+            format!("{} {}", VerdictKind::name(s.verdict), s.labels.join(", "))
         }
         _ => "normal".to_string(),
     }
@@ -209,7 +200,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
                     escape(&view.flags.join(" "))
                 )
             },
-            v = verdict_name(view.verdict),
+            v = VerdictKind::name(view.verdict),
         );
     }
     // Summary table.
@@ -244,7 +235,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
                 .collect::<Vec<_>>()
                 .join("<br>"),
             part = escape(&s.part),
-            v = verdict_name(s.verdict),
+            v = VerdictKind::name(s.verdict),
             zoom = s.detected.map_or(String::new(), |t| format!(
                 " data-zoom-log=\"{i}\" data-zoom-t=\"{}\"",
                 tick_of(r, t)
@@ -257,21 +248,23 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
         "<div class=\"timeline-toolbar\" data-log=\"{i}\"><button type=\"button\" data-action=\"fit\" title=\"whole log\">fit</button><button type=\"button\" data-action=\"in\" title=\"zoom in\">+</button><button type=\"button\" data-action=\"out\" title=\"zoom out\">−</button><button type=\"button\" data-action=\"left\" title=\"earlier\">◀</button><button type=\"button\" data-action=\"right\" title=\"later\">▶</button><span class=\"range\"></span><span class=\"hint\">wheel: zoom · drag: pan · double-click: whole log</span></div>\n<noscript><p class=\"warning\">The timelines are drawn by the page's script: allow scripts to see them.</p></noscript>"
     );
     // Explanation ids, for links from the timeline data.
-    let mut detection_ids: HashMap<usize, String> = HashMap::new();
-    let mut next_id = 0usize;
-    for k in 0..r.detections.len() {
-        detection_ids.insert(k, format!("x{i}-{next_id}"));
-        next_id += 1;
-    }
-    let mut trip_ids: Vec<Option<String>> = Vec::with_capacity(r.trips.len());
-    for t in &r.trips {
-        trip_ids.push(t.detail.as_ref().map(|_| {
-            next_id += 1;
-            format!("x{i}-{}", next_id - 1)
-        }));
-    }
+    // Detection k is `x{i}-{k}`; explained trips are numbered after them.
+    let detection_ids: Vec<String> = (0..r.detections.len())
+        .map(|k| format!("x{i}-{k}"))
+        .collect();
+    let mut next_id = r.detections.len();
+    let trip_ids: Vec<Option<String>> = r
+        .trips
+        .iter()
+        .map(|t| {
+            t.detail.as_ref().map(|_| {
+                next_id += 1;
+                format!("x{i}-{}", next_id - 1)
+            })
+        })
+        .collect();
     let mut parts_data = Vec::new();
-    let tick = tick_ns(r);
+    let tick = r.tick;
     for (pi, part) in plant.parts.iter().enumerate() {
         let s = r.summary.get(pi);
         let pm = p.model.parts.iter().find(|m| m.name == part.name);
@@ -279,7 +272,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
             h,
             "<section class=\"part\" id=\"log-{i}-{name}\" data-part=\"{name}\" data-log=\"{i}\">\n<h3>{name} <span class=\"chip verdict-{v}\">{v}</span> <span class=\"part-labels\">{labels}</span>{flags}</h3>",
             name = escape(&part.name),
-            v = s.map_or("normal", |s| verdict_name(s.verdict)),
+            v = s.map_or("normal", |s| VerdictKind::name(s.verdict)),
             labels = escape(&s.map_or(String::new(), |s| s.labels.join(" "))),
             flags = s
                 .filter(|s| !s.flags.is_empty())
@@ -322,7 +315,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
                             && d.verdict.labels == v.labels
                             && d.verdict.verdict == v.verdict
                     })
-                    .and_then(|k| detection_ids.get(&k).cloned());
+                    .map(|k| detection_ids[k].clone());
                 let _ = writeln!(
                     h,
                     "<tr class=\"verdict-{vk}\" data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\"><td>{} <span class=\"rel\">{}</span></td><td><span class=\"chip verdict-{vk}\">{vk}</span></td><td>{}</td><td>{}</td><td>{}{}</td></tr>",
@@ -334,12 +327,12 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
                     explanation.as_ref().map_or(String::new(), |id| format!(
                         " <a href=\"#{id}\">explanation</a>"
                     )),
-                    vk = verdict_name(v.verdict),
+                    vk = VerdictKind::name(v.verdict),
                     tk = tick_of(r, v.t),
                 );
                 verdicts_data.push(json!({
                     "t": tick_of(r, v.t),
-                    "verdict": verdict_name(v.verdict),
+                    "verdict": VerdictKind::name(v.verdict),
                     "labels": v.labels,
                     "flags": v.flags,
                     "reason": v.reason,
@@ -355,9 +348,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
             .enumerate()
             .filter(|(_, d)| d.part == pi)
         {
-            if let Some(id) = detection_ids.get(&k) {
-                detection_article(h, p, r, i, id, d, pm);
-            }
+            detection_article(h, p, r, i, &detection_ids[k], d, pm);
         }
         // Signals and windows for the timeline.
         let signals = signal_names(plant, part, pm);
@@ -386,7 +377,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
             .collect();
         parts_data.push(json!({
             "name": part.name,
-            "verdict": s.map_or("normal", |s| verdict_name(s.verdict)),
+            "verdict": s.map_or("normal", |s| VerdictKind::name(s.verdict)),
             "labels": s.map(|s| s.labels.clone()).unwrap_or_default(),
             "flags": s.map(|s| s.flags.clone()).unwrap_or_default(),
             "detected": s.and_then(|s| s.detected).map(|t| tick_of(r, t)),
@@ -445,20 +436,8 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
     })
 }
 
-/// The largest of 1 ms, 1 µs and 1 ns that divides every edge's offset from
-/// the start: the unit of the timeline data, keeping its numbers short.
-fn tick_ns(r: &LogReplay) -> Time {
-    for tick in [1_000_000, 1_000] {
-        if r.edges.iter().flatten().all(|t| (t - r.start) % tick == 0) {
-            return tick;
-        }
-    }
-    1
-}
-
 fn tick_of(r: &LogReplay, t: Time) -> i64 {
-    let tick = tick_ns(r);
-    ((t - r.start) as f64 / tick as f64).round() as i64
+    ((t - r.start) as f64 / r.tick as f64).round() as i64
 }
 
 /// Per state of the part (its signals' values as `0`/`1` text), the sensor
@@ -636,7 +615,7 @@ fn detection_article(
     let _ = writeln!(
         h,
         "<article class=\"explanation detection verdict-{vk}\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\">{part}: {vk} {labels} at {when} <span class=\"rel\">{rel}</span></h4>\n<p class=\"reason\">{reason}</p>",
-        vk = verdict_name(v.verdict),
+        vk = VerdictKind::name(v.verdict),
         tk = tick_of(r, v.t),
         part = escape(&part.name),
         labels = escape(&v.labels.join(", ")),
@@ -802,16 +781,14 @@ fn filter_section(h: &mut String, p: &Page<'_>, r: &LogReplay, i: usize, ids: &[
     } else {
         h.push_str("<table class=\"trips\"><thead><tr><th>constraint</th><th>times it started to hold</th><th>first</th></tr></thead><tbody>");
         for (name, n) in r.trip_counts.iter().filter(|c| c.1 > 0) {
-            let first = r.trips.iter().find(|t| &t.constraint == name);
+            let first = r.trips.iter().zip(ids).find(|(t, _)| &t.constraint == name);
             let _ = write!(
                 h,
                 "<tr><td><code>{}</code></td><td>{n}</td><td>{}</td></tr>",
                 escape(name),
-                first.map_or(String::new(), |t| format!(
+                first.map_or(String::new(), |(t, id)| format!(
                     "<a href=\"#{}\" data-zoom-log=\"{i}\" data-zoom-t=\"{}\">{}</a>",
-                    ids[r.trips.iter().position(|x| std::ptr::eq(x, t)).unwrap_or(0)]
-                        .clone()
-                        .unwrap_or_default(),
+                    id.as_deref().unwrap_or_default(),
                     tick_of(r, t.t),
                     escape(&absolute(r.time, t.t))
                 ))

@@ -22,14 +22,14 @@ use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
 use clap::{Args, ValueEnum};
-use diagnoser::diagnosis::DiagnoserOptions;
+use diagnoser::Plant;
 use diagnoser::model::Model;
-use diagnoser::{Plant, Time, TimeUnit, time};
 use filter_coupling::filter::Coupling;
 use indicatif::{ProgressBar, ProgressStyle};
-use learning::ingest::{IngestOptions, LogFormat, open};
+use learning::ingest::open;
 
 use crate::Failure;
+use crate::diagnose::ReplayArgs;
 use crate::simulate::CouplingArg;
 
 /// How the model pictures are drawn.
@@ -48,32 +48,11 @@ pub enum LayoutArg {
 /// Arguments of `gardefou report`.
 #[derive(Debug, Args)]
 pub struct ReportArgs {
-    /// Plant file: signals, parts, faults, partitions and constraints.
-    #[arg(long)]
-    plant: PathBuf,
-    /// Learned model (from `gardefou learn`).
-    #[arg(long)]
-    model: PathBuf,
-    /// Logs to review (any form); each is replayed from its own initial values.
-    #[arg(required = true, value_name = "LOG")]
-    logs: Vec<PathBuf>,
+    #[command(flatten)]
+    replay: ReplayArgs,
     /// The HTML file to write.
     #[arg(short, long, value_name = "FILE")]
     output: PathBuf,
-    /// Log form (default: detected from each file's header).
-    #[arg(long)]
-    format: Option<LogFormat>,
-    /// Unit of numeric timestamps in the logs (default: the plant file's).
-    #[arg(long)]
-    time_unit: Option<TimeUnit>,
-    /// Longest an unexpected sensor edge shows before the sensor reads its real
-    /// value again (longer, it is a stuck sensor).
-    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
-    glitch_max: Time,
-    /// Time at which the logs end, when later than their last event (in the
-    /// logs' time unit).
-    #[arg(long, value_name = "TIME")]
-    end: Option<f64>,
     /// Which flags the replayed safety filter reads.
     #[arg(long, value_enum, default_value = "def")]
     coupling: CouplingArg,
@@ -84,18 +63,8 @@ pub struct ReportArgs {
 
 /// What a report is made from, shared by `report` and `diagnose --report`.
 pub struct Request<'a> {
-    /// The plant file's path, for captions.
-    pub plant_path: &'a Path,
-    /// The model file's path, for captions.
-    pub model_path: &'a Path,
-    /// The logs.
-    pub logs: &'a [PathBuf],
-    /// How they are read.
-    pub ingest: IngestOptions,
-    /// Diagnoser settings.
-    pub options: DiagnoserOptions,
-    /// `--end`, in nanoseconds.
-    pub end: Option<Time>,
+    /// The plant, model and logs, and how to replay them.
+    pub replay: &'a ReplayArgs,
     /// Which flags the filter reads.
     pub coupling: Coupling,
     /// How pictures are drawn (`None`: no pictures).
@@ -108,22 +77,10 @@ fn bad(e: impl std::fmt::Display) -> Failure {
 
 /// Runs `gardefou report`.
 pub fn run(args: ReportArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
-    let model = Model::from_path(&args.model).map_err(bad)?;
-    let unit = args.time_unit.unwrap_or(plant.time_unit);
+    let plant = Plant::from_path(&args.replay.plant).map_err(bad)?;
+    let model = Model::from_path(&args.replay.model).map_err(bad)?;
     let request = Request {
-        plant_path: &args.plant,
-        model_path: &args.model,
-        logs: &args.logs,
-        ingest: IngestOptions {
-            format: args.format,
-            time_unit: unit,
-            ..IngestOptions::default()
-        },
-        options: DiagnoserOptions {
-            glitch_max: args.glitch_max,
-        },
-        end: args.end.map(|e| (e * unit.nanos() as f64).round() as Time),
+        replay: &args.replay,
         coupling: match args.coupling {
             CouplingArg::None => Coupling::None,
             CouplingArg::Def => Coupling::Flags,
@@ -160,32 +117,37 @@ pub fn build(plant: &Plant, model: &Model, request: &Request<'_>) -> Result<Stri
     } else {
         ProgressBar::hidden()
     };
+    let args = request.replay;
+    let ingest = args.ingest(plant);
+    let options = args.options();
+    let setup = collect::Setup {
+        plant,
+        model,
+        options: &options,
+        coupling: request.coupling,
+    };
     let mut replays = Vec::new();
-    for path in request.logs {
-        let stream = open(path, plant, &request.ingest).map_err(bad)?;
+    for path in &args.logs {
+        let stream = open(path, plant, &ingest).map_err(bad)?;
         let name = path.display().to_string();
         bar.set_message(name.clone());
-        let setup = collect::Setup {
-            plant,
-            model,
-            options: &request.options,
-            coupling: request.coupling,
-        };
-        let replay = collect::replay(setup, stream, &name, request.end, |n| bar.set_position(n))
-            .map_err(|e| bad(format!("{name}: {e}")))?;
+        let replay = collect::replay(setup, stream, &name, args.end(plant), |n| {
+            bar.set_position(n)
+        })
+        .map_err(|e| bad(format!("{name}: {e}")))?;
         replays.push(replay);
     }
     bar.finish_and_clear();
     let pictures = match request.layout {
-        Some(layout) => html::pictures(plant, model, &request.options, layout)
-            .map_err(|e| bad(format!("{}: {e}", request.model_path.display())))?,
+        Some(layout) => html::pictures(plant, model, &options, layout)
+            .map_err(|e| bad(format!("{}: {e}", args.model.display())))?,
         None => Vec::new(),
     };
     Ok(html::page(&html::Page {
         plant,
         model,
-        plant_path: request.plant_path,
-        model_path: request.model_path,
+        plant_path: &args.plant,
+        model_path: &args.model,
         coupling: request.coupling,
         replays: &replays,
         pictures: &pictures,

@@ -20,6 +20,17 @@ pub enum VerdictKind {
     Ambiguous,
 }
 
+impl VerdictKind {
+    /// The verdict as SPEC §3 writes it: `normal`, `certain` or `ambiguous`.
+    pub fn name(self) -> &'static str {
+        match self {
+            VerdictKind::Normal => "normal",
+            VerdictKind::Certain => "certain",
+            VerdictKind::Ambiguous => "ambiguous",
+        }
+    }
+}
+
 /// The label given when no mode of the model explains what was observed.
 pub const UNKNOWN_LABEL: &str = "unknown";
 
@@ -289,6 +300,20 @@ impl PlantDiagnoser {
     /// The coordinator's plant view of the parts' latest verdicts.
     pub fn plant_view(&mut self, t: Time) -> Verdict {
         self.coordinator.view(t)
+    }
+
+    /// The plant view at `t` as a summary row after the parts' `summaries`
+    /// (from [`Self::finish`]): detected when the first part was.
+    pub fn plant_summary(&mut self, t: Time, summaries: &[PartSummary]) -> PartSummary {
+        let view = self.plant_view(t);
+        PartSummary {
+            part: view.part,
+            verdict: view.verdict,
+            labels: view.labels,
+            detected: summaries.iter().filter_map(|p| p.detected).min(),
+            flags: view.flags,
+            changes: 0,
+        }
     }
 
     fn fire_timers(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
