@@ -278,9 +278,12 @@ impl Compiled {
                 (sa != sb || matches!(t, Trigger::Scan(_))).then_some((sa, t, sb))
             })
             .collect();
-        edges.sort_unstable_by(|a, b| {
-            (a.0, format!("{:?}", a.1), a.2).cmp(&(b.0, format!("{:?}", b.1), b.2))
-        });
+        // Any total order puts equal edges side by side for dedup.
+        let key = |t: &Trigger| match *t {
+            Trigger::Scan(ch) => (0, i64::from(ch)),
+            Trigger::Time { clock, at } => (1 + i64::from(clock), at),
+        };
+        edges.sort_unstable_by_key(|e| (e.0, key(&e.1), e.2));
         edges.dedup();
         Size {
             states: states.len(),

@@ -57,69 +57,151 @@ pub struct Counterexample {
 
 type Pair = (NodeIndex, Hypothesis, Hypothesis);
 
+/// Where each hypothesis of each compiled edge's source leads: positions in the
+/// target's hypotheses, computed once for every fault's pair graph.
+struct Successors {
+    /// Per node, the index of its first hypothesis in the flat position space.
+    first_hyp: Vec<usize>,
+    /// Hypotheses of all nodes.
+    hyps: usize,
+    /// Per edge, the index of its first (edge, source hypothesis) entry.
+    first_entry: Vec<usize>,
+    /// Per (edge, source hypothesis), the range of its successors in `targets`.
+    ranges: Vec<(u32, u32)>,
+    /// Successor positions in the target node's hypotheses.
+    targets: Vec<u32>,
+}
+
+impl Successors {
+    fn new(engine: &Engine, compiled: &Compiled) -> Successors {
+        let part = engine.part.clone();
+        let graph = &compiled.graph;
+        let mut first_hyp = Vec::with_capacity(graph.node_count());
+        let mut total = 0;
+        for i in graph.node_indices() {
+            first_hyp.push(total);
+            total += engine.state(graph[i].state).hyps.len();
+        }
+        let mut first_entry = Vec::with_capacity(graph.edge_count());
+        let (mut ranges, mut targets) = (Vec::new(), Vec::new());
+        for e in graph.edge_indices() {
+            first_entry.push(ranges.len());
+            let Some((a, b)) = graph.edge_endpoints(e) else {
+                continue;
+            };
+            let (na, nb) = (&graph[a], &graph[b]);
+            let source = engine.state(na.state).hyps.clone();
+            let obs = engine.state(na.state).obs;
+            let target_obs = engine.state(nb.state).obs;
+            let target = engine.state(nb.state).hyps.clone();
+            for &h in source.iter() {
+                let mut next = match &graph[e] {
+                    Trigger::Scan(ch) => part.step(obs, *ch, &[h], &na.readings),
+                    Trigger::Time { .. } => vec![h],
+                };
+                part.close(target_obs, &mut next, &nb.readings);
+                let start = targets.len() as u32;
+                targets.extend(
+                    next.iter()
+                        .filter_map(|x| target.iter().position(|y| y == x))
+                        .map(|p| p as u32),
+                );
+                ranges.push((start, targets.len() as u32));
+            }
+        }
+        Successors {
+            first_hyp,
+            hyps: total,
+            first_entry,
+            ranges,
+            targets,
+        }
+    }
+
+    fn of(&self, e: petgraph::graph::EdgeIndex, source_position: usize) -> &[u32] {
+        let (lo, hi) = self.ranges[self.first_entry[e.index()] + source_position];
+        &self.targets[lo as usize..hi as usize]
+    }
+}
+
 /// Decides the diagnosability of every fault of `engine`'s part on `compiled`.
 pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<FaultDiagnosability> {
     let part = engine.part.clone();
     let graph = &compiled.graph;
-    // Per edge, which hypothesis of the source leads to which of the target.
-    let mut derive: HashMap<(usize, Hypothesis), Vec<Hypothesis>> = HashMap::new();
-    let mut successors = |engine: &mut Engine, e: petgraph::graph::EdgeIndex, h: Hypothesis| {
-        if let Some(v) = derive.get(&(e.index(), h)) {
-            return v.clone();
-        }
-        let Some((a, b)) = graph.edge_endpoints(e) else {
-            return Vec::new();
-        };
-        let (na, nb) = (&graph[a], &graph[b]);
-        let obs = engine.state(na.state).obs;
-        let mut next = match &graph[e] {
-            Trigger::Scan(ch) => part.step(obs, *ch, &[h], &na.readings),
-            Trigger::Time { .. } => vec![h],
-        };
-        let target = engine.state(nb.state).obs;
-        part.close(target, &mut next, &nb.readings);
-        let hyps = &engine.state(nb.state).hyps;
-        next.retain(|x| hyps.contains(x));
-        derive.insert((e.index(), h), next.clone());
-        next
-    };
+    let successors = Successors::new(engine, compiled);
+    let hyps_of = |i: NodeIndex| -> &[Hypothesis] { &engine.state(graph[i].state).hyps };
 
     let mut out = Vec::new();
     for (m, mode) in part.modes.iter().enumerate().skip(1) {
         let f = m as u16;
-        // Every pair (F hypothesis, other hypothesis) in every node; hypotheses
-        // are distinct within a node, so the pairs are too.
+        // Every pair (F hypothesis, other hypothesis) in every node, numbered
+        // node by node, F hypothesis then other: the pair of positions
+        // (a, b) of node i is `base[i] + rank[a] * others[i] + rank[b]`.
         let mut nodes: Vec<Pair> = Vec::new();
+        let mut base = Vec::with_capacity(graph.node_count());
+        let mut others = Vec::with_capacity(graph.node_count());
+        let mut rank = vec![0usize; successors.hyps];
         for i in graph.node_indices() {
-            let hyps = &engine.state(graph[i].state).hyps;
+            let hyps = hyps_of(i);
+            let (mut in_f, mut not_f) = (0, 0);
+            for (p, h) in hyps.iter().enumerate() {
+                let r = &mut rank[successors.first_hyp[i.index()] + p];
+                if h.mode == f {
+                    *r = in_f;
+                    in_f += 1;
+                } else {
+                    *r = not_f;
+                    not_f += 1;
+                }
+            }
+            base.push(nodes.len());
+            others.push(not_f);
             for &a in hyps.iter().filter(|h| h.mode == f) {
                 for &b in hyps.iter().filter(|h| h.mode != f) {
                     nodes.push((i, a, b));
                 }
             }
         }
-        let index: HashMap<Pair, usize> = nodes.iter().enumerate().map(|(k, &p)| (p, k)).collect();
-        let mut adj: Vec<Vec<(usize, bool, petgraph::graph::EdgeIndex)>> =
-            vec![Vec::new(); nodes.len()];
-        // Edges between pairs (new pairs cannot appear: every node's pairs are in).
-        for (k, &(i, a, b)) in nodes.iter().enumerate() {
-            for e in graph.edges(i) {
-                let scan = matches!(e.weight(), Trigger::Scan(_));
-                let na = successors(engine, e.id(), a);
-                if na.is_empty() {
-                    continue;
-                }
-                let nb = successors(engine, e.id(), b);
-                for &x in &na {
-                    for &y in &nb {
-                        if let Some(&t) = index.get(&(e.target(), x, y)) {
-                            adj[k].push((t, scan, e.id()));
+        let mut adj = PairGraph::with_nodes(nodes.len());
+        for i in graph.node_indices() {
+            let hyps = hyps_of(i);
+            let positions_f: Vec<usize> = (0..hyps.len()).filter(|&p| hyps[p].mode == f).collect();
+            let positions_o: Vec<usize> = (0..hyps.len()).filter(|&p| hyps[p].mode != f).collect();
+            for (ra, &pa) in positions_f.iter().enumerate() {
+                for (rb, &pb) in positions_o.iter().enumerate() {
+                    // Pairs are numbered in the order they are visited here.
+                    debug_assert_eq!(adj.len(), base[i.index()] + ra * others[i.index()] + rb);
+                    adj.start_node();
+                    for e in graph.edges(i) {
+                        let scan = matches!(e.weight(), Trigger::Scan(_));
+                        let na = successors.of(e.id(), pa);
+                        if na.is_empty() {
+                            continue;
+                        }
+                        let nb = successors.of(e.id(), pb);
+                        let t = e.target();
+                        let target = hyps_of(t);
+                        let first = successors.first_hyp[t.index()];
+                        for &x in na {
+                            if target[x as usize].mode != f {
+                                continue;
+                            }
+                            for &y in nb {
+                                if target[y as usize].mode == f {
+                                    continue;
+                                }
+                                let to = base[t.index()]
+                                    + rank[first + x as usize] * others[t.index()]
+                                    + rank[first + y as usize];
+                                adj.push((to, scan, e.id()));
+                            }
                         }
                     }
                 }
             }
         }
-        let cycle = find_cycle(&adj);
+        let comp = adj.components();
+        let cycle = find_cycle(&adj, &comp);
         let mut confused: Vec<String> = Vec::new();
         let mut counterexample = None;
         if let Some(cycle) = &cycle {
@@ -134,24 +216,22 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
                 unit,
             ));
         }
-        // Which other modes share a scan cycle with F.
-        for (g, other) in part.modes.iter().enumerate() {
-            if g == m {
-                continue;
-            }
-            let keep: Vec<bool> = nodes.iter().map(|p| p.2.mode == g as u16).collect();
-            let sub: Vec<Vec<(usize, bool, petgraph::graph::EdgeIndex)>> = adj
+        // Which other modes share a scan cycle with F. Along an edge the other
+        // hypothesis keeps its mode, or goes from normal to a fault that begins
+        // (never back, never to another fault): every cycle keeps one mode, so
+        // one pass over the components finds them all.
+        let mut shares = vec![false; part.modes.len()];
+        for u in 0..adj.len() {
+            if adj
+                .out(u)
                 .iter()
-                .enumerate()
-                .map(|(k, es)| {
-                    if keep[k] {
-                        es.iter().copied().filter(|e| keep[e.0]).collect()
-                    } else {
-                        Vec::new()
-                    }
-                })
-                .collect();
-            if find_cycle(&sub).is_some() {
+                .any(|&(v, scan, _)| scan && comp[u] == comp[v])
+            {
+                shares[nodes[u].2.mode as usize] = true;
+            }
+        }
+        for (g, other) in part.modes.iter().enumerate() {
+            if g != m && shares[g] {
                 confused.push(other.label.clone());
             }
         }
@@ -179,22 +259,109 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
     out
 }
 
+type PairEdge = (usize, bool, petgraph::graph::EdgeIndex);
+
+/// The graph of pairs, its edges stored flat: the edges of pair `u` are
+/// `edges[start[u]..start[u + 1]]`, as (target pair, scan edge, compiled edge).
+struct PairGraph {
+    start: Vec<usize>,
+    edges: Vec<PairEdge>,
+    nodes: usize,
+}
+
+impl PairGraph {
+    fn with_nodes(nodes: usize) -> PairGraph {
+        PairGraph {
+            start: Vec::with_capacity(nodes + 1),
+            edges: Vec::new(),
+            nodes,
+        }
+    }
+
+    /// Pairs whose edges have been started.
+    fn len(&self) -> usize {
+        self.start.len()
+    }
+
+    /// The next pair's edges follow.
+    fn start_node(&mut self) {
+        self.start.push(self.edges.len());
+    }
+
+    fn push(&mut self, e: PairEdge) {
+        self.edges.push(e);
+    }
+
+    fn out(&self, u: usize) -> &[PairEdge] {
+        let end = self.start.get(u + 1).copied().unwrap_or(self.edges.len());
+        &self.edges[self.start[u]..end]
+    }
+
+    /// Strongly connected components (Tarjan, iterative): pairs with the same
+    /// number are on a common cycle.
+    fn components(&self) -> Vec<usize> {
+        debug_assert_eq!(self.len(), self.nodes);
+        let n = self.len();
+        const NONE: usize = usize::MAX;
+        let (mut index, mut low, mut comp) = (vec![NONE; n], vec![0; n], vec![NONE; n]);
+        let (mut on_stack, mut stack) = (vec![false; n], Vec::new());
+        let (mut next, mut count) = (0, 0);
+        let mut call: Vec<(usize, usize)> = Vec::new();
+        for root in 0..n {
+            if index[root] != NONE {
+                continue;
+            }
+            call.push((root, 0));
+            while let Some(&mut (u, ref mut k)) = call.last_mut() {
+                if *k == 0 {
+                    index[u] = next;
+                    low[u] = next;
+                    next += 1;
+                    stack.push(u);
+                    on_stack[u] = true;
+                }
+                let out = self.out(u);
+                if let Some(&(v, _, _)) = out.get(*k) {
+                    *k += 1;
+                    if index[v] == NONE {
+                        call.push((v, 0));
+                    } else if on_stack[v] {
+                        low[u] = low[u].min(index[v]);
+                    }
+                    continue;
+                }
+                call.pop();
+                if let Some(&(parent, _)) = call.last() {
+                    low[parent] = low[parent].min(low[u]);
+                }
+                if low[u] == index[u] {
+                    while let Some(w) = stack.pop() {
+                        on_stack[w] = false;
+                        comp[w] = count;
+                        if w == u {
+                            break;
+                        }
+                    }
+                    count += 1;
+                }
+            }
+        }
+        comp
+    }
+}
+
 /// A cycle through at least one scan edge, as (pair, edge taken) steps.
-fn find_cycle(
-    adj: &[Vec<(usize, bool, petgraph::graph::EdgeIndex)>],
-) -> Option<Vec<(usize, petgraph::graph::EdgeIndex)>> {
-    // Strongly connected components (Tarjan, iterative), then a scan edge
-    // inside one of them closes a cycle.
-    let comp = scc(adj);
+fn find_cycle(adj: &PairGraph, comp: &[usize]) -> Option<Vec<(usize, petgraph::graph::EdgeIndex)>> {
+    // A scan edge inside a strongly connected component closes a cycle.
     // The shortest of the first cycles found reads best as a counterexample.
     let mut best: Option<Vec<(usize, petgraph::graph::EdgeIndex)>> = None;
     let mut tried = 0;
-    for (u, es) in adj.iter().enumerate() {
-        for &(v, scan, e) in es {
+    for u in 0..adj.len() {
+        for &(v, scan, e) in adj.out(u) {
             if scan && comp[u] == comp[v] && tried < 64 {
                 tried += 1;
                 // Path v -> u inside the component, then u -> v.
-                if let Some(mut cycle) = bfs_path(adj, &comp, v, u) {
+                if let Some(mut cycle) = bfs_path(adj, comp, v, u) {
                     cycle.push((u, e));
                     if best.as_ref().is_none_or(|b| cycle.len() < b.len()) {
                         best = Some(cycle);
@@ -207,7 +374,7 @@ fn find_cycle(
 }
 
 fn bfs_path(
-    adj: &[Vec<(usize, bool, petgraph::graph::EdgeIndex)>],
+    adj: &PairGraph,
     comp: &[usize],
     from: usize,
     to: usize,
@@ -218,7 +385,7 @@ fn bfs_path(
     let mut prev: HashMap<usize, (usize, petgraph::graph::EdgeIndex)> = HashMap::new();
     let mut queue = std::collections::VecDeque::from([from]);
     while let Some(u) = queue.pop_front() {
-        for &(v, _, e) in &adj[u] {
+        for &(v, _, e) in adj.out(u) {
             if comp[v] != comp[from] || v == from || prev.contains_key(&v) {
                 continue;
             }
@@ -240,25 +407,8 @@ fn bfs_path(
     None
 }
 
-fn scc(adj: &[Vec<(usize, bool, petgraph::graph::EdgeIndex)>]) -> Vec<usize> {
-    let mut g: petgraph::graph::DiGraph<(), ()> = petgraph::graph::DiGraph::new();
-    let idx: Vec<NodeIndex> = (0..adj.len()).map(|_| g.add_node(())).collect();
-    for (u, es) in adj.iter().enumerate() {
-        for &(v, _, _) in es {
-            g.add_edge(idx[u], idx[v], ());
-        }
-    }
-    let mut comp = vec![0; adj.len()];
-    for (c, members) in petgraph::algo::kosaraju_scc(&g).into_iter().enumerate() {
-        for m in members {
-            comp[m.index()] = c;
-        }
-    }
-    comp
-}
-
 /// Longest path, counted in scan edges, of an acyclic pair graph.
-fn longest(adj: &[Vec<(usize, bool, petgraph::graph::EdgeIndex)>]) -> usize {
+fn longest(adj: &PairGraph) -> usize {
     let n = adj.len();
     let mut memo: Vec<Option<usize>> = vec![None; n];
     // Iterative post-order DFS.
@@ -268,14 +418,15 @@ fn longest(adj: &[Vec<(usize, bool, petgraph::graph::EdgeIndex)>]) -> usize {
         }
         let mut stack = vec![(s, 0usize)];
         while let Some((u, k)) = stack.pop() {
-            if k < adj[u].len() {
+            let out = adj.out(u);
+            if k < out.len() {
                 stack.push((u, k + 1));
-                let v = adj[u][k].0;
+                let v = out[k].0;
                 if memo[v].is_none() && !stack.iter().any(|&(w, _)| w == v) {
                     stack.push((v, 0));
                 }
             } else {
-                let best = adj[u]
+                let best = out
                     .iter()
                     .map(|&(v, scan, _)| memo[v].unwrap_or(0) + usize::from(scan))
                     .max()
