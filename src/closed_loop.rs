@@ -51,6 +51,7 @@ pub struct LoopOutcome {
 }
 
 /// The PLC of the closed loop: filter-based safe control plus the diagnosers.
+#[derive(Clone)]
 pub(crate) struct CoupledPlc {
     filter: Filter,
     /// The diagnosers (none while recording a run to learn from).
@@ -199,7 +200,7 @@ impl Physics for Watched {
     fn plant(&self) -> &Plant {
         self.line.plant()
     }
-    fn plant_toml(&self) -> &'static str {
+    fn plant_toml(&self) -> &str {
         self.line.plant_toml()
     }
     fn advance(&mut self, t: Time, act: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>) {

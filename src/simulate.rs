@@ -6,6 +6,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
+use datasets::generated::{GeneratedPlant, Size};
 use datasets::inject::{FaultSpec, Injection};
 use datasets::output::{RunFiles, write_run};
 use datasets::sim::SimConfig;
@@ -19,13 +20,37 @@ use crate::Failure;
 use crate::closed_loop::CoupledPlc;
 use crate::virtual_plc::{self, VirtualPlc};
 
-/// Which reference plant to simulate.
+/// Which plant to simulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum PlantKind {
     /// The box-sorting line of seeds 001 and 002.
     Sorting,
     /// The four-cylinder rig of seed 001 §5.
     Cylinders,
+    /// A plant drawn from --plant-seed and --size: a line of stations with
+    /// cylinders, arms, tables, grippers, conveyors and magazines.
+    Generated,
+}
+
+/// The size of a generated plant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SizeArg {
+    /// 2 to 5 parts.
+    Small,
+    /// 6 to 11 parts.
+    Medium,
+    /// 12 to 20 parts.
+    Large,
+}
+
+impl From<SizeArg> for Size {
+    fn from(s: SizeArg) -> Size {
+        match s {
+            SizeArg::Small => Size::Small,
+            SizeArg::Medium => Size::Medium,
+            SizeArg::Large => Size::Large,
+        }
+    }
 }
 
 /// Where the orders come from.
@@ -68,6 +93,12 @@ pub struct SimulateArgs {
     /// Plant to simulate.
     #[arg(long, value_enum, default_value = "sorting")]
     plant: PlantKind,
+    /// Which generated plant (with --plant generated); --seed draws the run.
+    #[arg(long, value_name = "N")]
+    plant_seed: Option<u64>,
+    /// Size of the generated plant (with --plant generated).
+    #[arg(long, value_enum, default_value = "medium")]
+    size: SizeArg,
     /// Simulated duration, e.g. 90s, 20min, 2h, 3d.
     #[arg(long, default_value = "1h", value_parser = time::parse_duration)]
     duration: Time,
@@ -78,9 +109,9 @@ pub struct SimulateArgs {
     /// TEMPLATE@TIME (e.g. 'stuck1(C4)@10min'). Repeatable.
     #[arg(long = "fault", value_name = "LABEL@TIME")]
     faults: Vec<FaultSpec>,
-    /// PLC scan period in milliseconds.
-    #[arg(long, default_value_t = 10.0)]
-    scan_ms: f64,
+    /// PLC scan period in milliseconds [default: 10; a generated plant's own].
+    #[arg(long)]
+    scan_ms: Option<f64>,
     /// Also write the wide form, scans.csv (one row per scan: large).
     #[arg(long)]
     scans: bool,
@@ -116,18 +147,44 @@ pub struct SimulateArgs {
     coupling: Option<CouplingArg>,
 }
 
+/// The generated plant of `--plant-seed` and `--size`, if asked for.
+fn generated(args: &SimulateArgs) -> Result<Option<GeneratedPlant>, Failure> {
+    match (args.plant, args.plant_seed) {
+        (PlantKind::Generated, Some(seed)) => GeneratedPlant::generate(seed, args.size.into())
+            .map(Some)
+            .map_err(|e| {
+                Failure::Io(format!(
+                    "the generator wrote a plant file that does not load: {e}"
+                ))
+            }),
+        (PlantKind::Generated, None) => Err(Failure::BadInput(
+            "--plant generated needs --plant-seed N: the seed that draws the plant".into(),
+        )),
+        (_, Some(_)) => Err(Failure::BadInput(
+            "--plant-seed only goes with --plant generated".into(),
+        )),
+        (_, None) => Ok(None),
+    }
+}
+
 /// Runs `gardefou simulate`.
 pub fn run(args: SimulateArgs) -> Result<(), Failure> {
-    if !(args.scan_ms.is_finite() && args.scan_ms >= 0.001 && args.scan_ms <= 60_000.0) {
-        return Err(Failure::BadInput(format!(
-            "bad --scan-ms {}: expected a period between 0.001 and 60000 ms",
-            args.scan_ms
-        )));
-    }
-    let scan_period = (args.scan_ms * MS as f64).round() as Time;
-    let plant = match args.plant {
-        PlantKind::Sorting => sorting::plant(),
-        PlantKind::Cylinders => cylinders::plant(),
+    let generated = generated(&args)?;
+    let scan_period = match args.scan_ms {
+        Some(ms) if !(ms.is_finite() && (0.001..=60_000.0).contains(&ms)) => {
+            return Err(Failure::BadInput(format!(
+                "bad --scan-ms {ms}: expected a period between 0.001 and 60000 ms"
+            )));
+        }
+        Some(ms) => (ms * MS as f64).round() as Time,
+        None => generated
+            .as_ref()
+            .map_or(10 * MS, |g| g.plant().scan_period),
+    };
+    let plant = match (&generated, args.plant) {
+        (Some(g), _) => g.plant().clone(),
+        (None, PlantKind::Cylinders) => cylinders::plant(),
+        (None, _) => sorting::plant(),
     };
     let faults = args
         .faults
@@ -171,7 +228,14 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
                 "{name} only goes with --serve-modbus ADDR (the virtual PLC)"
             )));
         }
-        return write_files(&args, &plant, control, scan_period, faults);
+        return write_files(
+            &args,
+            &plant,
+            generated.as_ref(),
+            control,
+            scan_period,
+            faults,
+        );
     };
     if !args.realtime {
         return Err(Failure::BadInput(
@@ -215,6 +279,7 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
 fn write_files(
     args: &SimulateArgs,
     plant: &diagnoser::Plant,
+    generated: Option<&GeneratedPlant>,
     control: ControlKind,
     scan_period: Time,
     faults: Vec<Injection>,
@@ -262,6 +327,20 @@ fn write_files(
             let mut rig = cylinders::CylinderRig::new(cylinders::CylinderConfig::default());
             let mut control = cylinders::ConstraintControl::new(rig.ids());
             write_run(&files, &mut rig, &mut control, &config, progress)
+        }
+        PlantKind::Generated => {
+            let Some(g) = generated else {
+                return Err(Failure::BadInput(
+                    "--plant generated needs --plant-seed".into(),
+                ));
+            };
+            write_run(
+                &files,
+                &mut g.physics(),
+                &mut g.program(),
+                &config,
+                progress,
+            )
         }
     }
     .map_err(|e| Failure::Io(format!("cannot write {}: {e}", args.out.display())))?;

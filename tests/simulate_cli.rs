@@ -94,9 +94,34 @@ fn run_directory_is_complete_and_consistent() {
 
     let truth: serde_json::Value =
         serde_json::from_slice(&read(&out.join("truth.json"))).expect("json");
+    let showed = truth["faults"][0]["showed_at"].as_i64().expect("F5 shows");
     assert_eq!(
         truth,
-        serde_json::json!({"faults": [{"label": "F5", "template": "blocked_at(P, C4)", "onset": 120000}]})
+        serde_json::json!({"faults": [{"label": "F5", "template": "blocked_at(P, C4)", "onset": 120000,
+            "showed": true, "showed_at": showed}]})
+    );
+    // It shows where the log first differs from the same run without it.
+    let normal = dir.path().join("normal");
+    let o = simulate(&normal, &["--duration", "5min", "--scan-ms", "20"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rows = |dir: &Path, keep: &dyn Fn(i64) -> bool| -> Vec<String> {
+        String::from_utf8_lossy(&read(&dir.join("events.csv")))
+            .lines()
+            .skip(1)
+            .filter(|l| {
+                l.split(',')
+                    .next()
+                    .and_then(|t| t.parse().ok())
+                    .is_some_and(keep)
+            })
+            .map(str::to_string)
+            .collect()
+    };
+    assert!(showed >= 120_000);
+    assert_eq!(rows(&out, &|t| t < showed), rows(&normal, &|t| t < showed));
+    assert_ne!(
+        rows(&out, &|t| t == showed),
+        rows(&normal, &|t| t == showed)
     );
     let damage: serde_json::Value =
         serde_json::from_slice(&read(&out.join("damage.json"))).expect("json");
@@ -200,4 +225,142 @@ fn help_is_available_on_every_verb() {
     ] {
         assert!(text.contains(flag), "{flag} missing from help");
     }
+}
+
+/// The `label` of the first fault of `plant` whose template starts with `prefix`.
+fn fault_like(plant: &Plant, prefix: &str) -> String {
+    plant
+        .faults
+        .iter()
+        .find(|f| f.template.to_string().starts_with(prefix))
+        .map(|f| f.label.clone())
+        .unwrap_or_else(|| panic!("{} has no {prefix} fault", plant.name))
+}
+
+#[test]
+fn generated_plants_load_learn_and_keep_their_truth() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    for (seed, size) in [("11", "small"), ("12", "medium")] {
+        let normal = dir.path().join(format!("{seed}-normal"));
+        let args = ["--plant", "generated", "--plant-seed", seed, "--size", size];
+        let o = simulate(
+            &normal,
+            &[&args[..], &["--duration", "1h", "--seed", "1"]].concat(),
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let plant = Plant::from_path(&normal.join("plant.toml")).expect("the plant file loads");
+        assert_eq!(plant.name, format!("generated-{seed}-{size}"));
+        let damage: serde_json::Value =
+            serde_json::from_slice(&read(&normal.join("damage.json"))).expect("json");
+        assert_eq!(damage["damage"], serde_json::json!([]));
+
+        // `learn` accepts the log, with the plant file as written.
+        let model = dir.path().join(format!("{seed}-model.json"));
+        let o = gardefou(&[
+            "learn",
+            "-q",
+            "--plant",
+            normal.join("plant.toml").to_str().expect("utf-8"),
+            normal.join("events.csv").to_str().expect("utf-8"),
+            "-o",
+            model.to_str().expect("utf-8"),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let m: serde_json::Value = serde_json::from_slice(&read(&model)).expect("json");
+        assert_eq!(m["parts"].as_array().map(Vec::len), Some(plant.parts.len()));
+
+        // Two faults: the truth file names them, with their onsets, and says
+        // when each showed.
+        let (stuck, blocked) = (
+            fault_like(&plant, "stuck1("),
+            fault_like(&plant, "blocked_at("),
+        );
+        let faults = [format!("{stuck}@300s"), format!("{blocked}@400000ms")];
+        let faulty = dir.path().join(format!("{seed}-faulty"));
+        let run = [
+            &args[..],
+            &[
+                "--duration",
+                "20min",
+                "--seed",
+                "5",
+                "--fault",
+                &faults[0],
+                "--fault",
+                &faults[1],
+            ],
+        ]
+        .concat();
+        let o = simulate(&faulty, &run);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let truth: serde_json::Value =
+            serde_json::from_slice(&read(&faulty.join("truth.json"))).expect("json");
+        let entries = truth["faults"].as_array().expect("a list");
+        assert_eq!(entries.len(), 2);
+        for (e, (label, onset)) in entries.iter().zip([(&stuck, 300_000), (&blocked, 400_000)]) {
+            assert_eq!(e["label"], serde_json::json!(label));
+            assert_eq!(
+                e["template"],
+                serde_json::json!(plant.fault(label).expect("declared").template.to_string())
+            );
+            assert_eq!(e["onset"], serde_json::json!(onset));
+            let showed = e["showed_at"].as_i64();
+            assert_eq!(e["showed"], serde_json::json!(showed.is_some()));
+            assert!(showed.is_none_or(|t| t >= onset), "{e}");
+        }
+        // The same seeds give the same files; another run seed, the same plant.
+        let again = dir.path().join(format!("{seed}-again"));
+        assert!(simulate(&again, &run).status.success());
+        for name in ["events.csv", "truth.json", "plant.toml", "damage.json"] {
+            assert_eq!(
+                read(&faulty.join(name)),
+                read(&again.join(name)),
+                "{name} differs"
+            );
+        }
+        assert_eq!(
+            read(&faulty.join("plant.toml")),
+            read(&normal.join("plant.toml"))
+        );
+        assert_ne!(
+            read(&faulty.join("events.csv")),
+            read(&normal.join("events.csv"))
+        );
+    }
+}
+
+#[test]
+fn generated_plants_need_their_seed() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("g");
+    assert_bad_input(&simulate(&out, &["--plant", "generated"]), "--plant-seed");
+    assert_bad_input(&simulate(&out, &["--plant-seed", "3"]), "--plant generated");
+    assert_bad_input(
+        &simulate(
+            &out,
+            &[
+                "--plant",
+                "generated",
+                "--plant-seed",
+                "3",
+                "--size",
+                "huge",
+            ],
+        ),
+        "huge",
+    );
+    assert_bad_input(
+        &simulate(
+            &out,
+            &[
+                "--plant",
+                "generated",
+                "--plant-seed",
+                "3",
+                "--fault",
+                "F2@1s",
+            ],
+        ),
+        "unknown fault 'F2' for plant 'generated-3-medium'",
+    );
 }

@@ -455,7 +455,7 @@ impl Physics for CylinderRig {
         &self.plant
     }
 
-    fn plant_toml(&self) -> &'static str {
+    fn plant_toml(&self) -> &str {
         PLANT_TOML
     }
 

@@ -136,16 +136,34 @@ pub struct TruthEntry {
     pub template: String,
     /// Onset in the log's time unit.
     pub onset: serde_json::Value,
+    /// Whether the fault showed in the log at all: from its onset, what the
+    /// PLC saw or ordered differs from the same run without it (an edge
+    /// changed, added or missing).
+    pub showed: bool,
+    /// The first scan where it did, in the log's time unit; `null` if never.
+    pub showed_at: serde_json::Value,
 }
 
-/// The ground truth of a run, as written to `truth.json`.
-pub fn truth_json(faults: &[Injection], unit: TimeUnit) -> serde_json::Value {
+/// The ground truth of a run, as written to `truth.json`: each fault and when
+/// it first showed (`showed[i]` for `faults[i]`, see
+/// [`crate::sim::run_with_showing`]).
+pub fn truth_json(
+    faults: &[Injection],
+    showed: &[Option<Time>],
+    unit: TimeUnit,
+) -> serde_json::Value {
     let entries: Vec<TruthEntry> = faults
         .iter()
-        .map(|f| TruthEntry {
-            label: f.label.clone(),
-            template: f.template.to_string(),
-            onset: time_value(f.onset, unit),
+        .enumerate()
+        .map(|(i, f)| {
+            let at = showed.get(i).copied().flatten();
+            TruthEntry {
+                label: f.label.clone(),
+                template: f.template.to_string(),
+                onset: time_value(f.onset, unit),
+                showed: at.is_some(),
+                showed_at: at.map_or(serde_json::Value::Null, |t| time_value(t, unit)),
+            }
         })
         .collect();
     serde_json::json!({ "faults": entries })
@@ -187,36 +205,41 @@ impl SensorInjector {
     pub fn new(signals: &SignalTable, faults: &[Injection]) -> Self {
         let mut out = SensorInjector::default();
         for f in faults {
-            let Some(index) = f
-                .template
-                .signal()
-                .and_then(|s| signals.id(s))
-                .map(|id| id.index())
-            else {
-                continue;
-            };
-            let mode = match &f.template {
-                FaultTemplate::Stuck0(_) => SensorMode::Stuck(false),
-                FaultTemplate::Stuck1(_) => SensorMode::Stuck(true),
-                FaultTemplate::UnexpectedRise(_) => SensorMode::Pulse(true, None),
-                FaultTemplate::UnexpectedFall(_) => SensorMode::Pulse(false, None),
-                FaultTemplate::ActuatorStuck0(_) => {
-                    out.actuators.push((index, f.onset, false));
-                    continue;
-                }
-                FaultTemplate::ActuatorStuck1(_) => {
-                    out.actuators.push((index, f.onset, true));
-                    continue;
-                }
-                _ => continue,
-            };
-            out.sensors.push(SensorFault {
-                index,
-                onset: f.onset,
-                mode,
-            });
+            out.add(signals, f);
         }
         out
+    }
+
+    /// Adds one fault; an element fault is left to the physics.
+    pub fn add(&mut self, signals: &SignalTable, f: &Injection) {
+        let Some(index) = f
+            .template
+            .signal()
+            .and_then(|s| signals.id(s))
+            .map(|id| id.index())
+        else {
+            return;
+        };
+        let mode = match &f.template {
+            FaultTemplate::Stuck0(_) => SensorMode::Stuck(false),
+            FaultTemplate::Stuck1(_) => SensorMode::Stuck(true),
+            FaultTemplate::UnexpectedRise(_) => SensorMode::Pulse(true, None),
+            FaultTemplate::UnexpectedFall(_) => SensorMode::Pulse(false, None),
+            FaultTemplate::ActuatorStuck0(_) => {
+                self.actuators.push((index, f.onset, false));
+                return;
+            }
+            FaultTemplate::ActuatorStuck1(_) => {
+                self.actuators.push((index, f.onset, true));
+                return;
+            }
+            _ => return,
+        };
+        self.sensors.push(SensorFault {
+            index,
+            onset: f.onset,
+            mode,
+        });
     }
 
     /// Replaces true sensor values in `io` by what a faulty sensor reports at `t`.

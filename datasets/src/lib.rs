@@ -7,13 +7,17 @@
 //! the plant. What the PLC saw and ordered is recorded as a log, beside the ground
 //! truth of the injected faults and a record of any physical damage.
 //!
-//! Two plants are modelled, both from the seeds: the box-sorting line
-//! ([`sorting`]) and the four-cylinder teaching rig ([`cylinders`]).
+//! Two reference plants are modelled from the seeds: the box-sorting line
+//! ([`sorting`]) and the four-cylinder teaching rig ([`cylinders`]). Any number
+//! of other plants are generated from a seed ([`generated`]): lines of
+//! stations with cylinders, arms, tables, grippers, conveyors and magazines,
+//! their step-chain programs and their safety constraints.
 //!
 //! It is not for: learning, diagnosis or filter evaluation; those read the logs
 //! this crate writes.
 
 pub mod cylinders;
+pub mod generated;
 pub mod inject;
 pub mod output;
 pub mod sim;

@@ -13,7 +13,7 @@ use diagnoser::log::{EventWriter, IntervalWriter, ScanWriter};
 use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
 
 use crate::inject::{time_value, truth_json};
-use crate::sim::{Controller, Physics, ScanSink, SimConfig, SimReport, run};
+use crate::sim::{Controller, Physics, ScanSink, SimConfig, SimReport, run_with_showing};
 
 /// Where and what to write.
 #[derive(Debug, Clone)]
@@ -107,8 +107,9 @@ impl ScanSink for LogRecorder {
     }
 }
 
-/// Runs a simulation and writes all its files into `files.dir`.
-pub fn write_run<P: Physics, C: Controller>(
+/// Runs a simulation and writes all its files into `files.dir`; `truth.json`
+/// says when each fault first showed (see [`run_with_showing`]).
+pub fn write_run<P: Physics + Clone, C: Controller + Clone>(
     files: &RunFiles,
     physics: &mut P,
     controller: &mut C,
@@ -123,13 +124,14 @@ pub fn write_run<P: Physics, C: Controller>(
         fs::create_dir_all(&staging)?;
         let plant = physics.plant().clone();
         let mut recorder = LogRecorder::create(&staging, &plant, files.scans)?;
-        let report = run(physics, controller, config, &mut recorder, progress)?;
+        let (report, showed) =
+            run_with_showing(physics, controller, config, &mut recorder, progress)?;
         recorder.finish()?;
 
         let unit = plant.time_unit;
         write_json(
             &staging.join("truth.json"),
-            &truth_json(&config.faults, unit),
+            &truth_json(&config.faults, &showed, unit),
         )?;
         let damage: Vec<serde_json::Value> = report
             .damage

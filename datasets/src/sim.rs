@@ -25,7 +25,7 @@ pub trait Physics {
     fn plant(&self) -> &Plant;
 
     /// The text of that plant file, comments included, as written beside a run.
-    fn plant_toml(&self) -> &'static str;
+    fn plant_toml(&self) -> &str;
 
     /// Advances the plant to time `t`, with the actuators physically at `actuators`
     /// (indexed like the plant's signals; sensor entries are meaningless) since the
@@ -108,6 +108,52 @@ pub fn run<P: Physics, C: Controller, S: ScanSink>(
     Ok(stepper.finish(physics))
 }
 
+/// Runs the scan loop as [`run`] does, and tells when each injected fault
+/// first showed: the first scan, from its onset, where what the PLC saw or
+/// ordered differs from the same run without that fault (same seed, the other
+/// faults kept). A fault that changes nothing the PLC sees, and delays no
+/// edge it would have seen, never shows. `None` for such a fault.
+///
+/// Each fault costs a second run in lockstep, until the fault shows.
+pub fn run_with_showing<P, C, S>(
+    physics: &mut P,
+    controller: &mut C,
+    config: &SimConfig,
+    sink: &mut S,
+    mut progress: impl FnMut(Time),
+) -> std::io::Result<(SimReport, Vec<Option<Time>>)>
+where
+    P: Physics + Clone,
+    C: Controller + Clone,
+    S: ScanSink,
+{
+    let mut twins: Vec<Option<(Stepper, P, C)>> = (0..config.faults.len())
+        .map(|i| {
+            let mut without = config.clone();
+            without.faults.remove(i);
+            let stepper = Stepper::new(physics.plant(), &without);
+            Some((stepper, physics.clone(), controller.clone()))
+        })
+        .collect();
+    let mut showed = vec![None; config.faults.len()];
+    let mut stepper = Stepper::new(physics.plant(), config);
+    while let Some((t, values)) = stepper.step(physics, controller)? {
+        sink.scan(t, values)?;
+        for (i, twin) in twins.iter_mut().enumerate() {
+            let Some((s, p, c)) = twin else { continue };
+            let same = s.step(p, c)?.is_some_and(|(_, v)| v == values);
+            if !same && t >= config.faults[i].onset {
+                showed[i] = Some(t);
+                *twin = None;
+            }
+        }
+        if stepper.scans() % 65_536 == 0 {
+            progress(t);
+        }
+    }
+    Ok((stepper.finish(physics), showed))
+}
+
 /// The scan loop one scan at a time, for callers that pace the scans
 /// themselves (a virtual PLC in real time) or act between them (flags set
 /// from outside). [`run`] is this loop run to the end.
@@ -149,6 +195,19 @@ impl Stepper {
             scan: config.scan_period.max(1),
             duration: config.duration,
             t: 0,
+        }
+    }
+
+    /// Adds a fault to the run under way, from its onset on: a run that
+    /// takes a fault before its onset is the run that had it from the start.
+    /// This lets many faulty runs branch off one fault-free run.
+    pub fn inject(&mut self, plant: &Plant, fault: Injection) {
+        if fault.template.signal().is_some() {
+            self.injector.add(&plant.signals, &fault);
+        } else {
+            self.pending_elements.push(fault);
+            self.pending_elements
+                .sort_by_key(|f| std::cmp::Reverse(f.onset));
         }
     }
 

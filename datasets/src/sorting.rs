@@ -641,7 +641,7 @@ impl Physics for SortingLine {
         &self.plant
     }
 
-    fn plant_toml(&self) -> &'static str {
+    fn plant_toml(&self) -> &str {
         PLANT_TOML
     }
 
