@@ -38,7 +38,8 @@ pub struct ReplayArgs {
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     pub glitch_max: Time,
     /// Time at which the logs end, when later than their last event (in the
-    /// logs' time unit): deadlines up to it still count. Default: the last event.
+    /// logs' time unit): deadlines up to it still count. Default: the log's end
+    /// row if it has one (events form), else its last event.
     #[arg(long, value_name = "TIME")]
     pub end: Option<f64>,
 }
@@ -156,9 +157,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
             read += batch.len() as u64;
             bar.set_position(read);
         }
-        if let Some(end) = replay.end(&plant) {
-            last = last.max(end);
-        }
+        let last = stream.end.extend(last, replay.end(&plant));
         let mut summary = diagnoser.finish(last, &mut emit);
         summary.push(diagnoser.plant_summary(last, &summary));
         if let Some(e) = write_err {

@@ -372,4 +372,22 @@ fn a_cylinder_blocked_on_its_way_is_caught_by_the_reactions_deadline() {
             .is_some_and(|r| r.contains("RE(Se1)")),
         "{first}"
     );
+    // The shipped log ends with its end row at 1 200 000 ms: without `--end`,
+    // the deadlines up to it count all the same.
+    let ended = lines(&gardefou(&[
+        "diagnose",
+        "--plant",
+        &plant,
+        "--model",
+        model.to_str().expect("utf-8"),
+        &data("cylinders/V1-blocked-between/events.csv"),
+    ]));
+    assert_eq!(ended, blocked, "the end row acts as --end");
+    let text = std::fs::read_to_string(data("cylinders/V1-blocked-between/events.csv"))
+        .expect("shipped log");
+    assert_eq!(
+        text.lines().last(),
+        Some("1200000,,"),
+        "the simulator writes the end row"
+    );
 }

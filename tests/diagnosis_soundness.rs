@@ -4,7 +4,7 @@
 
 use std::sync::OnceLock;
 
-use datasets::inject::{FaultSpec, Injection};
+use datasets::inject::{FaultSpec, Injection, with_unexplained_scan};
 use datasets::sim::{MemorySink, SimConfig};
 use datasets::sorting::{plant, simulate_in_memory};
 use diagnoser::diagnosis::fusion::PLANT_VIEW;
@@ -153,4 +153,40 @@ fn ten_normal_hours_give_no_alarm() {
     assert!(sink.events.len() > 50_000, "{} events", sink.events.len());
     let verdicts = diagnose(&sink);
     assert!(verdicts.is_empty(), "false alarms: {verdicts:?}");
+}
+
+/// A false alarm on purpose, then a real fault five minutes later: the
+/// turntable is `unknown` for an episode, raises no flag, is back to normal
+/// after a cycle, and then gives the real fault its label and flag.
+#[test]
+fn after_an_unknown_episode_a_later_fault_is_still_labelled() {
+    let (plant, _) = model();
+    let turntable: Vec<_> = ["C4", "C5"]
+        .iter()
+        .map(|s| plant.signals.id(s).expect("a turntable sensor"))
+        .collect();
+    let onset = 15 * MINUTE;
+    let faulty = simulate(31, onset + 5 * MINUTE, &[("F2", onset)]);
+    let (sink, at) = with_unexplained_scan(&faulty, &turntable, onset - 5 * MINUTE, 10 * MS);
+    let verdicts: Vec<Verdict> = diagnose(&sink)
+        .into_iter()
+        .filter(|v| v.part == "turntable")
+        .collect();
+    let first = verdicts.first().expect("the turntable leaves normal");
+    assert_eq!(first.t, at, "{first:?}");
+    assert_eq!(first.labels, ["unknown"], "{first:?}");
+    assert!(first.flags.is_empty(), "{first:?}");
+    let back = verdicts
+        .iter()
+        .find(|v| v.verdict == VerdictKind::Normal)
+        .expect("back to normal");
+    assert!(back.t < onset, "back only at {}: {back:?}", back.t);
+    assert!(back.reason.contains("back to normal"), "{back:?}");
+    for v in verdicts.iter().filter(|v| v.t < onset) {
+        assert!(v.flags.is_empty(), "a flag before the real fault: {v:?}");
+    }
+    let last = verdicts.last().expect("verdicts");
+    assert!(last.t >= onset, "{last:?}");
+    assert_eq!(last.labels, ["F2"], "{verdicts:?}");
+    assert_eq!(last.flags, ["def_C4"], "{verdicts:?}");
 }

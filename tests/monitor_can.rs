@@ -97,6 +97,9 @@ fn f2_slice(plant: &Plant) -> (Vec<bool>, Changes) {
     let mut later = Changes::new();
     for line in text.lines().skip(1) {
         let f: Vec<&str> = line.split(',').collect();
+        if f[1].is_empty() {
+            continue; // the end row
+        }
         let t: i64 = f[0].parse().expect("numeric time");
         let s = plant.signals.id(f[1]).expect("known signal").index();
         let v = f[2] == "1";

@@ -80,6 +80,17 @@ fn shipped_logs_read_back_with_their_ground_truth() {
         let intervals =
             read_intervals_as_events(&dir.join("intervals.csv"), &plant.signals, TimeUnit::Ms)
                 .expect("intervals");
+        // The events form also says when the run ended (its end row).
+        let end = events.end.expect("the simulator writes the end row");
+        assert!(
+            events.events.last().is_none_or(|e| e.t <= end),
+            "{}",
+            run.display()
+        );
+        let events = diagnoser::log::EventLog {
+            end: None,
+            ..events
+        };
         assert_eq!(events, intervals, "{}", run.display());
         let truth: serde_json::Value =
             serde_json::from_slice(&fs::read(dir.join("truth.json")).expect("truth"))

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use diagnoser::log::{read_events, read_intervals_as_events};
-use diagnoser::{Plant, TimeUnit};
+use diagnoser::{Plant, SECOND, TimeUnit};
 
 fn gardefou(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gardefou"))
@@ -134,6 +134,12 @@ fn run_directory_is_complete_and_consistent() {
     let intervals =
         read_intervals_as_events(&out.join("intervals.csv"), &plant.signals, TimeUnit::Ms)
             .expect("intervals read back");
+    // The events form ends with its end row, at the last scan.
+    assert_eq!(events.end, Some(5 * 60 * SECOND));
+    let events = diagnoser::log::EventLog {
+        end: None,
+        ..events
+    };
     assert_eq!(events, intervals);
     assert!(events.events.len() > 100);
     // Every event falls on a 20 ms scan.

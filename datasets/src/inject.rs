@@ -2,7 +2,12 @@
 //! and what the actuators do.
 
 use diagnoser::fault::FaultTarget;
-use diagnoser::{FaultTemplate, MS, Plant, SignalKind, SignalTable, Time, TimeUnit, time};
+use diagnoser::{
+    Event, FaultTemplate, MS, Plant, SECOND, SignalId, SignalKind, SignalTable, Time, TimeUnit,
+    time,
+};
+
+use crate::sim::MemorySink;
 use serde::Serialize;
 
 /// Width of the spurious pulse of `unexpected_rise` / `unexpected_fall`.
@@ -270,4 +275,48 @@ impl SensorInjector {
             }
         }
     }
+}
+
+/// A false alarm on purpose: `sink` with one scan that no fault of a part
+/// explains. At the first scan from `from` on (scans every `scan`) where none of
+/// `sensors` changed within a second, every one of them flips, and one scan
+/// later flips back. Returns the run and that time.
+///
+/// Use it with two sensors or more of one part: a single fault explains one
+/// edge, not several at once.
+pub fn with_unexplained_scan(
+    sink: &MemorySink,
+    sensors: &[SignalId],
+    from: Time,
+    scan: Time,
+) -> (MemorySink, Time) {
+    let near = |t: Time| {
+        sink.events
+            .iter()
+            .any(|e| sensors.contains(&e.signal) && (e.t - t).abs() < SECOND)
+    };
+    let mut at = from;
+    while near(at) {
+        at += scan;
+    }
+    let mut values = sink.initial.clone();
+    for e in sink.events.iter().take_while(|e| e.t < at) {
+        values[e.signal.index()] = e.value;
+    }
+    let mut out = sink.clone();
+    for &signal in sensors {
+        let v = values[signal.index()];
+        out.events.push(Event {
+            t: at,
+            signal,
+            value: !v,
+        });
+        out.events.push(Event {
+            t: at + scan,
+            signal,
+            value: v,
+        });
+    }
+    out.events.sort_by_key(|e| (e.t, e.signal));
+    (out, at)
 }

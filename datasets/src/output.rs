@@ -32,6 +32,8 @@ pub struct LogRecorder {
     intervals: IntervalWriter<Out>,
     scans: Option<ScanWriter<Out>>,
     last: Vec<bool>,
+    /// Time of the last scan recorded: where the recording ends.
+    last_t: Option<Time>,
 }
 
 impl LogRecorder {
@@ -53,11 +55,16 @@ impl LogRecorder {
                 None
             },
             last: Vec::new(),
+            last_t: None,
         })
     }
 
-    /// Flushes and closes every file.
-    pub fn finish(self) -> io::Result<()> {
+    /// Ends the events log at the last scan (its end row), then flushes and
+    /// closes every file.
+    pub fn finish(mut self) -> io::Result<()> {
+        if let Some(t) = self.last_t {
+            self.events.write_end(t)?;
+        }
         self.events
             .finish()?
             .into_inner()
@@ -81,6 +88,7 @@ impl LogRecorder {
 
 impl ScanSink for LogRecorder {
     fn scan(&mut self, t: Time, values: &[bool]) -> io::Result<()> {
+        self.last_t = Some(t);
         if let Some(scans) = &mut self.scans {
             scans.write(t, values)?;
         }

@@ -160,6 +160,7 @@ fn good_log() -> EventLog {
             event(2000, "C5", false),
             event(2400, "C4", true),
         ],
+        end: None,
     }
 }
 
@@ -174,6 +175,17 @@ fn good_events_file_reads_into_its_changes() {
     assert_eq!(log.events[0], event(100, "A4", true));
     assert_eq!(log.events[3], event(1210, "A4", false));
     assert_eq!(log, good_log());
+}
+
+#[test]
+fn an_end_row_says_when_the_log_ends() {
+    let log = read("events", "good_ended.csv").expect("good file");
+    assert_eq!(log.end, Some(3000 * MS));
+    assert_eq!(
+        EventLog { end: None, ..log },
+        good_log(),
+        "the end row adds no event"
+    );
 }
 
 #[test]

@@ -100,6 +100,7 @@ fn source_log(format: TimeFormat, scans: &[(Time, Vec<bool>)]) -> EventLog {
         start,
         initial,
         events,
+        end: None,
     }
 }
 
@@ -137,6 +138,18 @@ proptest! {
         let events = events.finish().expect("finish");
         let intervals = intervals.finish().expect("finish");
         let wide = wide.finish().expect("finish");
+
+        // An events log that says when it ended reads back with that end.
+        let end = scans[scans.len() - 1].0;
+        let mut ended = EventWriter::new(Vec::new(), &signals, format).expect("writer");
+        ended.write_initial(source.start, &source.initial).expect("write");
+        for event in &source.events {
+            ended.write(event).expect("write");
+        }
+        ended.write_end(end).expect("write");
+        let ended = ended.finish().expect("finish");
+        let with_end = EventLog { end: Some(end), ..source.clone() };
+        prop_assert_eq!(read_events_from(&ended[..], path, &signals, choice), Ok(with_end));
 
         let text = |bytes: &[u8]| String::from_utf8_lossy(bytes).into_owned();
         let from_events = read_events_from(&events[..], path, &signals, choice);

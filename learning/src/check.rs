@@ -135,6 +135,7 @@ pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violati
         pc.state = state;
     }
     let mut out = Vec::new();
+    let declared = log.end.clone();
     let (_, last_t) = routes.replay(
         log.batches,
         log.start,
@@ -142,8 +143,10 @@ pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violati
         |t, changes| step(&mut parts, t, changes, scale, &mut out),
         |_| {},
     )?;
+    // Deadlines up to the log's declared end count: nothing changed until then.
+    let end = declared.extend(last_t, None);
     for pc in &mut parts {
-        missed(pc, last_t, scale, &mut out);
+        missed(pc, end, scale, &mut out);
     }
     out.sort_by_key(|v| v.t);
     Ok(out)

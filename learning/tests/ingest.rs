@@ -39,6 +39,8 @@ struct Read {
     initial: Vec<bool>,
     events: Vec<Event>,
     batches: usize,
+    /// The end the log declared, read after the last batch.
+    end: Option<Time>,
 }
 
 /// Opens and reads a whole log, checking the batch contract on the way: each
@@ -46,6 +48,7 @@ struct Read {
 fn read(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<Read, Located> {
     let stream = open(path, plant, options)?;
     let (format, time, start, initial) = (stream.format, stream.time, stream.start, stream.initial);
+    let declared = stream.end;
     let mut events: Vec<Event> = Vec::new();
     let mut batches = 0;
     for batch in stream.batches {
@@ -75,6 +78,7 @@ fn read(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<Read, Loc
         initial,
         events,
         batches,
+        end: declared.get(),
     })
 }
 
@@ -151,6 +155,7 @@ fn every_form_reads_back_the_same_run() {
         start: sink.start,
         initial: sink.initial.clone(),
         events: sink.events.clone(),
+        end: None,
     };
     let mut expected: Vec<(PathBuf, LogFormat)> = Vec::new();
 
@@ -616,6 +621,97 @@ fn an_error_deep_in_a_large_csv_is_located_after_the_batches_before_it() {
         delivered >= BATCH,
         "the batches before the error are delivered: {delivered}"
     );
+}
+
+/// The run as an events CSV, with an end row at `end` if given, and `extra`
+/// rows after everything.
+fn events_csv(plant: &Plant, sink: &MemorySink, end: Option<Time>, extra: &str) -> String {
+    let ms = TimeFormat::Numeric(TimeUnit::Ms);
+    let mut w = EventWriter::new(Vec::new(), &plant.signals, ms).expect("writer");
+    w.write_initial(sink.start, &sink.initial).expect("write");
+    for e in &sink.events {
+        w.write(e).expect("write");
+    }
+    if let Some(end) = end {
+        w.write_end(end).expect("write");
+    }
+    String::from_utf8(w.finish().expect("finish")).expect("utf-8") + extra
+}
+
+#[test]
+fn an_end_row_reaches_every_reader_of_the_events_form() {
+    let (plant, sink) = simulated();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let last = sink.events.last().expect("events").t;
+    let end = last + 90 * SECOND;
+    let ended = dir.path().join("ended.csv");
+    std::fs::write(&ended, events_csv(&plant, &sink, Some(end), "")).expect("write");
+    let open_ended = dir.path().join("open_ended.csv");
+    std::fs::write(&open_ended, events_csv(&plant, &sink, None, "")).expect("write");
+
+    // The same rows as Parquet: the end row has a null signal and value.
+    let names = |i: u32| plant.signals.name(SignalId(i));
+    let mut rows: Vec<(Time, Option<&str>, Option<bool>)> = (0..sink.initial.len())
+        .map(|i| (sink.start, Some(names(i as u32)), Some(sink.initial[i])))
+        .collect();
+    rows.extend(
+        sink.events
+            .iter()
+            .map(|e| (e.t, Some(names(e.signal.0)), Some(e.value))),
+    );
+    rows.push((end, None, None));
+    let parquet = dir.path().join("ended.parquet");
+    write_parquet(
+        &parquet,
+        vec![
+            Column::new(
+                "t".into(),
+                rows.iter().map(|r| r.0 / MS).collect::<Vec<i64>>(),
+            ),
+            Column::new(
+                "signal".into(),
+                rows.iter().map(|r| r.1).collect::<Vec<_>>(),
+            ),
+            Column::new("value".into(), rows.iter().map(|r| r.2).collect::<Vec<_>>()),
+        ],
+    );
+
+    let buffered = IngestOptions {
+        memory_budget: 0,
+        ..options(BATCH)
+    };
+    for (path, opts, declared) in [
+        (&ended, options(BATCH), Some(end)),
+        (&ended, buffered.clone(), Some(end)),
+        (&parquet, options(BATCH), Some(end)),
+        (&open_ended, options(BATCH), None),
+        (&open_ended, buffered.clone(), None),
+    ] {
+        let what = format!("{} (memory budget {})", path.display(), opts.memory_budget);
+        let r = read(path, &plant, &opts).unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_eq!(r.events, sink.events, "{what}: the end row adds no event");
+        assert_eq!(r.end, declared, "{what}");
+    }
+
+    // Nothing may follow the end row: every reader says where.
+    let after = dir.path().join("after_end.csv");
+    let text = events_csv(&plant, &sink, Some(end), "");
+    let end_line = text.lines().count();
+    let (_, signal) = plant.signals.iter().next().expect("a signal");
+    std::fs::write(
+        &after,
+        format!("{text}{},{},1\n", (end + SECOND) / MS, signal.name),
+    )
+    .expect("write");
+    for opts in [options(BATCH), buffered] {
+        let e = first_error(&after, &plant, &opts);
+        assert_eq!(e.location.line, end_line + 1, "{e}");
+        assert!(
+            e.message
+                .contains(&format!("after the end row on line {end_line}")),
+            "{e}"
+        );
+    }
 }
 
 #[test]

@@ -41,6 +41,7 @@ fn stream(sink: &MemorySink, name: &str) -> LogStream {
         start: sink.start,
         initial: sink.initial.clone(),
         batches: Box::new(batches.into_iter()),
+        end: Default::default(),
     }
 }
 

@@ -29,6 +29,7 @@ fn sorting_hour() -> LogStream {
         start: sink.start,
         initial: sink.initial,
         batches: Box::new(std::iter::once(Ok(events))),
+        end: Default::default(),
     }
 }
 
@@ -41,6 +42,7 @@ fn in_small_batches(log: LogStream, size: usize) -> LogStream {
     let batches: Vec<_> = events.chunks(size).map(|c| Ok(c.to_vec())).collect();
     LogStream {
         batches: Box::new(batches.into_iter()),
+        end: Default::default(),
         ..log
     }
 }
@@ -152,6 +154,7 @@ fn a_log_that_does_not_fit_the_signals_is_refused() {
         start: 0,
         initial: vec![false; 3],
         batches: Box::new(std::iter::empty()),
+        end: Default::default(),
     };
     let err = suggest_parts(&plant.signals, vec![log], &SuggestOptions::default())
         .expect_err("three values for eighteen signals");

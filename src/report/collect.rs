@@ -150,7 +150,8 @@ pub struct Setup<'a> {
     pub coupling: Coupling,
 }
 
-/// Replays one log. `end` extends the log's end (deadlines up to it count).
+/// Replays one log. `end` (`--end`) extends the log's end, its last event or
+/// its end row (deadlines up to it count).
 pub fn replay(
     setup: Setup<'_>,
     stream: LogStream,
@@ -225,7 +226,7 @@ pub fn replay(
         r.out.events += batch.len() as u64;
         progress(r.out.events);
     }
-    let end = end.map_or(last, |x| x.max(last));
+    let end = stream.end.extend(last, end);
     let mut summary = diagnoser.finish(end, &mut |v| verdicts.push(v));
     if r.pending_t.is_some() {
         r.complete(&mut verdicts);

@@ -106,6 +106,15 @@ impl Engine {
         self.intern(obs, hyps)
     }
 
+    /// The state to start again from in the observed vector `obs` after an
+    /// unexplained observation (see [`PartDiagnoser::resync`]), closed for the
+    /// clock readings.
+    pub fn resync(&mut self, obs: u32, readings: &Readings) -> u32 {
+        let mut hyps = self.part.resync(obs);
+        self.part.close(obs, &mut hyps, readings);
+        self.intern(obs, hyps)
+    }
+
     /// A state by index.
     pub fn state(&self, id: u32) -> &DiagnoserState {
         &self.states[id as usize]

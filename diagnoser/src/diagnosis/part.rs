@@ -857,6 +857,28 @@ impl PartDiagnoser {
         vec![Hypothesis::normal(obs)]
     }
 
+    /// The hypotheses to start again from in the observed state `obs`, after
+    /// observations that no mode explains: normal there, as at a log's start,
+    /// and every stuck sensor that reads its stuck value, whatever the real one
+    /// is. Closing the set adds the faults that may have begun unseen.
+    pub fn resync(&self, obs: u32) -> Vec<Hypothesis> {
+        let mut out = self.initial(obs);
+        for (m, mode) in self.modes.iter().enumerate().skip(1) {
+            if let ModeKind::SensorStuck { bit, value } = mode.kind
+                && (obs >> bit & 1 == 1) == value
+            {
+                out.push(Hypothesis {
+                    mode: m as u16,
+                    flags: 0,
+                    since: 0,
+                    phys: obs ^ (1 << bit),
+                });
+            }
+        }
+        out.sort_unstable();
+        out
+    }
+
     /// The clock thresholds that matter to a set of hypotheses, per clock: guard
     /// bounds (for events) and the moments time alone changes the set (hidden
     /// transitions becoming possible, deadlines passing). A threshold `θ` is

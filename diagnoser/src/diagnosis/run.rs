@@ -86,6 +86,47 @@ struct PartRun {
     last_command: Option<(u32, u32)>,
     /// First time the verdict left normal.
     detected: Option<Time>,
+    /// The unknown episode the part is in, if any.
+    episode: Option<Episode>,
+}
+
+/// An unknown episode: from observations that no mode of the part explains
+/// until the part runs a learned cycle again.
+///
+/// `unknown` is not the end of a part's diagnosis. The diagnoser starts again
+/// from what the part reads now, with its clocks unknown, as at a log's start,
+/// and keeps diagnosing. The episode ends, and the part is reported normal
+/// again, once it has come back to the first learned state it was seen in
+/// since, after leaving it: one cycle that the model explains. A fault found
+/// meanwhile is reported, but raises no `def_` flag until the episode is over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Episode {
+    /// When the observations stopped fitting.
+    since: Time,
+    /// The first learned state the part was seen in after starting again.
+    anchor: Option<u32>,
+    /// Whether it has left the anchor since.
+    left: bool,
+}
+
+impl Episode {
+    /// Notes the observed state `obs` (`learned`: a state of the model); true
+    /// once the part is back in its anchor after leaving it.
+    fn cycled(&mut self, obs: u32, learned: bool) -> bool {
+        match self.anchor {
+            None => {
+                if learned {
+                    self.anchor = Some(obs);
+                }
+                false
+            }
+            Some(a) if a != obs => {
+                self.left = true;
+                false
+            }
+            Some(_) => self.left,
+        }
+    }
 }
 
 /// What a part's diagnoser concluded, at the end of a replay.
@@ -218,6 +259,7 @@ impl PlantDiagnoser {
                 next_timer: None,
                 last_command: None,
                 detected: None,
+                episode: None,
             });
         }
         self.now = t0;
@@ -352,7 +394,7 @@ impl PlantDiagnoser {
         run.next_timer = engine.next_timer(run.state, &run.origins, at);
         self.earliest = earliest(&self.runs);
         // The deadline itself is the last moment the event could still have come.
-        self.report(p, at - 1, previous, None, out);
+        self.settle(p, at - 1, previous, None, out);
     }
 
     fn flush(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
@@ -397,21 +439,84 @@ impl PlantDiagnoser {
             {
                 self.earliest = Some(x);
             }
-            if engine.state(run.state).labels != engine.state(previous).labels {
-                self.report(p, t, previous, Some((obs_before, changed)), out);
-            }
+            self.settle(p, t, previous, Some((obs_before, changed)), out);
         }
         pending.clear();
         self.pending = pending;
     }
 
-    /// Emits a verdict if part `p`'s labels changed since the last one given.
+    /// Part `p`'s state has just moved on from `previous`: reports what changed,
+    /// starts an unknown episode when nothing explains the part any more, and
+    /// ends one when the part has run a learned cycle again.
+    fn settle(
+        &mut self,
+        p: usize,
+        t: Time,
+        previous: u32,
+        scan: Option<(u32, u32)>,
+        out: &mut impl FnMut(Verdict),
+    ) {
+        let (engine, run) = (&self.engines[p], &self.runs[p]);
+        let labels = engine.labels(engine.state(run.state).labels);
+        if !labels.normal && labels.modes.is_empty() {
+            self.report(p, t, previous, scan, None, out);
+            self.start_again(p, t);
+            return;
+        }
+        let Some(mut episode) = run.episode else {
+            self.report(p, t, previous, scan, None, out);
+            return;
+        };
+        if !labels.normal {
+            self.report(p, t, previous, scan, None, out);
+            return;
+        }
+        let obs = run.obs;
+        let back = episode.cycled(obs, engine.part.model_state(obs).is_some());
+        let reason = back.then(|| {
+            format!(
+                "back to normal: {} is in state {} again after a cycle that the model explains; unknown since {} {}",
+                engine.part.name,
+                engine.part.describe(obs),
+                self.unit.format(episode.since),
+                self.unit.name(),
+            )
+        });
+        self.runs[p].episode = (!back).then_some(episode);
+        if let Some(reason) = reason {
+            self.report(p, t, previous, scan, Some(reason), out);
+        }
+    }
+
+    /// Starts part `p`'s diagnosis again from what it reads at `t`, its clocks
+    /// unknown (see [`Episode`]).
+    fn start_again(&mut self, p: usize, t: Time) {
+        let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
+        run.origins.iter_mut().for_each(|o| *o = None);
+        read(&run.origins, t, &mut self.after);
+        run.state = engine.resync(run.obs, &self.after);
+        run.next_timer = engine.next_timer(run.state, &run.origins, t);
+        let mut episode = run.episode.unwrap_or(Episode {
+            since: t,
+            anchor: None,
+            left: false,
+        });
+        if episode.anchor.is_none() {
+            episode.cycled(run.obs, engine.part.model_state(run.obs).is_some());
+        }
+        run.episode = Some(episode);
+        self.earliest = earliest(&self.runs);
+    }
+
+    /// Emits a verdict if part `p`'s labels changed since the last one given;
+    /// `reason` replaces the diagnoser's own.
     fn report(
         &mut self,
         p: usize,
         t: Time,
         previous: u32,
         scan: Option<(u32, u32)>,
+        reason: Option<String>,
         out: &mut impl FnMut(Verdict),
     ) {
         let (engine, run) = (&self.engines[p], &mut self.runs[p]);
@@ -420,16 +525,37 @@ impl PlantDiagnoser {
             return;
         }
         let labels = engine.labels(now);
-        let new_flags = run.flags | labels.flags;
-        let reason = super::explain::reason(
-            engine,
-            previous,
-            run.state,
-            scan,
-            &self.before,
-            run.last_command,
-            self.unit,
-        );
+        let unknown = !labels.normal && labels.modes.is_empty();
+        let mut reason = reason.unwrap_or_else(|| {
+            super::explain::reason(
+                engine,
+                previous,
+                run.state,
+                scan,
+                &self.before,
+                run.last_command,
+                self.unit,
+            )
+        });
+        // No flag while the part is unknown, nor until it has run a learned
+        // cycle since.
+        let new_flags = match run.episode {
+            Some(e) if labels.flags != 0 => {
+                reason.push_str(&format!(
+                    "; no def_ flag: unknown since {} {}, no learned cycle yet",
+                    self.unit.format(e.since),
+                    self.unit.name()
+                ));
+                run.flags
+            }
+            Some(_) => run.flags,
+            None => run.flags | labels.flags,
+        };
+        if unknown && run.episode.is_none() {
+            reason.push_str(
+                "; diagnosis starts again from the present readings, back to normal after a learned cycle",
+            );
+        }
         run.flags = new_flags;
         run.shown = now;
         if !labels.normal && run.detected.is_none() {

@@ -7,6 +7,11 @@
 //! or `false` (any case). Optional columns `site`, `seq` and `quality` may appear
 //! anywhere in the header; their content is ignored.
 //!
+//! A log may say when its recording ended with a last *end row*: a time, with the
+//! signal and the value left empty. Every signal kept its value until then, so
+//! deadlines that passed between the last change and the end count. Without it,
+//! the log ends at its last row.
+//!
 //! ```text
 //! t,signal,value
 //! 0,C4,1
@@ -14,6 +19,7 @@
 //! 0,A4,0
 //! 100,A4,1
 //! 110,C4,0
+//! 2000,,
 //! ```
 
 use std::io::{self, BufRead, BufWriter, Write};
@@ -87,6 +93,13 @@ impl<W: Write> EventWriter<W> {
         self.row(event.t, i, event.value)
     }
 
+    /// Writes the end row: the recording ended at `t`, with no change since the
+    /// last row. It must be the last row written.
+    pub fn write_end(&mut self, t: Time) -> io::Result<()> {
+        self.out.write_all(self.time.get(t).as_bytes())?;
+        self.out.write_all(b",,\n")
+    }
+
     fn row(&mut self, t: Time, i: usize, value: bool) -> io::Result<()> {
         let name = self.names.get(i).map_or("", String::as_str);
         self.out.write_all(self.time.get(t).as_bytes())?;
@@ -108,7 +121,8 @@ impl<W: Write> EventWriter<W> {
 /// It yields every row, opening rows and repeated values included (see
 /// [`read_events`] for the checked [`EventLog`]). It checks the header, the number
 /// of fields, times (which must not go backwards), values and signal names, and
-/// stops after the first error. Memory does not grow with the log.
+/// stops after the first error. Memory does not grow with the log. An end row is
+/// not yielded: it ends the iteration, and [`EventReader::end`] gives its time.
 pub struct EventReader<'a, R> {
     csv: CsvReader<R>,
     signals: &'a SignalTable,
@@ -118,6 +132,7 @@ pub struct EventReader<'a, R> {
     time: TimeParser,
     state: State,
     previous: Option<(Time, usize)>,
+    end: Option<Time>,
 }
 
 impl<'a, R: BufRead> EventReader<'a, R> {
@@ -149,6 +164,7 @@ impl<'a, R: BufRead> EventReader<'a, R> {
             time,
             state,
             previous: None,
+            end: None,
         })
     }
 
@@ -163,9 +179,35 @@ impl<'a, R: BufRead> EventReader<'a, R> {
         self.csv.line_no()
     }
 
-    fn parse_row(&mut self) -> Result<Event, Located> {
+    /// The time of the log's end row, once the reader has reached it.
+    pub fn end(&self) -> Option<Time> {
+        self.end
+    }
+
+    /// Whether the current row is an end row (empty signal and value).
+    fn at_end_row(&self) -> bool {
+        let [_, signal_col, value_col] = self.columns;
+        self.csv.field(signal_col).is_empty() && self.csv.field(value_col).is_empty()
+    }
+
+    /// Reads the end row's time; no row may follow it.
+    fn read_end(&mut self) -> Result<(), Located> {
+        let t = self.checked_time()?;
+        let line = self.csv.line_no();
+        if self.csv.next_record()? {
+            let message = format!(
+                "a row after the end row on line {line}: the end row (a time with no signal and no value) must be the last"
+            );
+            return Err(self.csv.error(1, None, message));
+        }
+        self.end = Some(t);
+        Ok(())
+    }
+
+    /// The current row's time, which must not go backwards.
+    fn checked_time(&mut self) -> Result<Time, Located> {
         let csv = &self.csv;
-        let [t_col, signal_col, value_col] = self.columns;
+        let t_col = self.columns[0];
         csv.check_width(self.width)?;
         let t = self.time.parse(csv, t_col, "t")?;
         if let Some((previous, line)) = self.previous {
@@ -178,6 +220,13 @@ impl<'a, R: BufRead> EventReader<'a, R> {
                 return Err(csv.field_error(t_col, "t", message));
             }
         }
+        Ok(t)
+    }
+
+    fn parse_row(&mut self) -> Result<Event, Located> {
+        let t = self.checked_time()?;
+        let csv = &self.csv;
+        let [_, signal_col, value_col] = self.columns;
         let signal = csv.signal(signal_col, "signal", self.signals)?;
         let value = csv.value(value_col, "value")?;
         self.previous = Some((t, csv.line_no()));
@@ -202,6 +251,10 @@ impl<R: BufRead> Iterator for EventReader<'_, R> {
     fn next(&mut self) -> Option<Self::Item> {
         if let Err(e) = self.state.advance(&mut self.csv)? {
             return Some(Err(e));
+        }
+        if self.at_end_row() {
+            self.state = State::Done;
+            return self.read_end().err().map(Err);
         }
         let row = self.parse_row();
         if row.is_err() {
@@ -298,5 +351,6 @@ pub fn read_events_from<R: BufRead>(
         start,
         initial,
         events,
+        end: rows.end(),
     })
 }

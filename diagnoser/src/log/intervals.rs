@@ -440,5 +440,6 @@ pub fn read_intervals_as_events_from<R: BufRead>(
         start,
         initial,
         events,
+        end: None,
     })
 }

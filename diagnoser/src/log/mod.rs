@@ -87,4 +87,7 @@ pub struct EventLog {
     /// its previous one), sorted by time then signal id, at most one per signal and
     /// time.
     pub events: Vec<Event>,
+    /// When the recording ended, if the log says so (the events form's end row):
+    /// no change between the last event and then.
+    pub end: Option<Time>,
 }

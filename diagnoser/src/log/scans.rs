@@ -285,5 +285,6 @@ pub fn read_scans_as_events_from<R: BufRead>(
         start,
         initial,
         events,
+        end: None,
     })
 }

@@ -14,7 +14,7 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use diagnoser::log::{EventReader, ScanReader, TimeFormatChoice};
 use diagnoser::{Event, Located, Location, Plant, SignalId, SignalTable, Time, TimeFormat};
 
-use super::{IngestOptions, LogFormat, LogStream};
+use super::{IngestOptions, LogEnd, LogFormat, LogStream};
 
 enum Msg {
     Start {
@@ -38,12 +38,14 @@ pub(super) fn open(
     let owned = path.to_path_buf();
     let choice = TimeFormatChoice::Detect(options.time_unit);
     let batch = options.batch_rows.max(1);
+    let end = LogEnd::default();
+    let found = end.clone();
     std::thread::Builder::new()
         .name("gardefou-read".into())
         .spawn(move || {
             let result = match format {
                 LogFormat::ScansCsv => scans(&owned, &signals, choice, batch, &send),
-                _ => events(&owned, &signals, choice, batch, &send),
+                _ => events(&owned, &signals, choice, batch, &send, &found),
             };
             if let Err(e) = result {
                 let _ = send.send(Msg::Failed(e));
@@ -67,6 +69,7 @@ pub(super) fn open(
             start,
             initial,
             batches: Box::new(Incoming(recv)),
+            end,
         }),
         Ok(Msg::Failed(e)) => Err(e),
         Ok(Msg::Batch(_)) | Err(_) => Err(Located::new(
@@ -150,6 +153,7 @@ fn events(
     choice: TimeFormatChoice,
     size: usize,
     send: &SyncSender<Msg>,
+    end: &LogEnd,
 ) -> Result<(), Located> {
     let mut reader = EventReader::new(open_file(path)?, path, signals, choice)?;
     let mut values = vec![false; signals.len()];
@@ -204,6 +208,10 @@ fn events(
                 return Ok(());
             }
         }
+    }
+    // Before the last batch goes: the consumer reads the end after it.
+    if let Some(t) = reader.end() {
+        end.set(t);
     }
     out.finish();
     Ok(())

@@ -367,6 +367,7 @@ pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogSt
         start,
         initial,
         batches: Box::new(reader),
+        end: super::LogEnd::default(),
     })
 }
 

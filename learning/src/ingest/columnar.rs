@@ -61,7 +61,7 @@ use polars::prelude::{
     PolarsResult, ScanArgsParquet, Schema, SchemaRef, SerReader, StringChunked, col,
 };
 
-use super::{IngestOptions, LogFormat, LogStream};
+use super::{IngestOptions, LogEnd, LogFormat, LogStream};
 
 /// The three ways of writing the same information.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -159,6 +159,7 @@ pub(super) fn open(
         ready: VecDeque::new(),
         done: false,
         error: None,
+        end: LogEnd::default(),
     };
     // Read until the initial values are known; the events read meanwhile wait in
     // `ready` for the first batch.
@@ -172,6 +173,7 @@ pub(super) fn open(
         return Err(no_data(path));
     };
     let initial = initial.to_vec();
+    let end = reader.end.clone();
     Ok(LogStream {
         path: path.to_path_buf(),
         format,
@@ -179,6 +181,7 @@ pub(super) fn open(
         start,
         initial,
         batches: Box::new(reader),
+        end,
     })
 }
 
@@ -848,6 +851,10 @@ trait Form: Send {
     fn opening(&self) -> Option<(Time, &[bool])>;
     /// How times are written.
     fn format(&self) -> TimeFormat;
+    /// The end the log declares, once read.
+    fn end(&self) -> Option<Time> {
+        None
+    }
 }
 
 /// The iterator of batches of a [`LogStream`].
@@ -859,6 +866,7 @@ struct Reader {
     ready: VecDeque<Event>,
     done: bool,
     error: Option<Located>,
+    end: LogEnd,
 }
 
 impl Reader {
@@ -870,6 +878,9 @@ impl Reader {
                 self.form
                     .finish(&mut out)
                     .map_err(|problem| self.ctx.locate(problem))?;
+                if let Some(t) = self.form.end() {
+                    self.end.set(t);
+                }
                 false
             }
             Some(Err(message)) => return Err(self.ctx.polars_failure(&message)),
@@ -1251,6 +1262,8 @@ struct EventsForm {
     /// The changes at the current time, not yet known to be complete.
     scan: Vec<Event>,
     scan_time: Option<Time>,
+    /// The end row: its time and row.
+    end: Option<(Time, u64)>,
 }
 
 impl EventsForm {
@@ -1270,6 +1283,7 @@ impl EventsForm {
             previous: None,
             scan: Vec::new(),
             scan_time: None,
+            end: None,
         }
     }
 
@@ -1335,6 +1349,11 @@ impl EventsForm {
         self.rows += 1;
         let (cells_t, cells_signal, cells_value) =
             (&batch.cells[0], &batch.cells[1], &batch.cells[2]);
+        if let Some((_, end_row)) = self.end {
+            return Err(Problem::row(row, "a row after the end row on line ")
+                .line_of(end_row)
+                .then(": the end row (a time with no signal and no value) must be the last"));
+        }
         let t = self
             .clock
             .time(cells_t, i)
@@ -1353,6 +1372,13 @@ impl EventsForm {
                 )
                 .line_of(previous_row));
             }
+        }
+        if cells_signal.is_empty(i) && cells_value.is_empty(i) {
+            if !self.opened {
+                self.open()?;
+            }
+            self.end = Some((t, row));
+            return Ok(());
         }
         let signal = cells_signal
             .signal(i, &self.signals)
@@ -1422,6 +1448,10 @@ impl Form for EventsForm {
 
     fn format(&self) -> TimeFormat {
         self.clock.format
+    }
+
+    fn end(&self) -> Option<Time> {
+        self.end.map(|(t, _)| t)
     }
 }
 

@@ -18,6 +18,7 @@
 //! of the column in the file's schema.
 
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
 
 use diagnoser::{Event, Located, Plant, Time, TimeFormat, TimeUnit};
 
@@ -108,6 +109,40 @@ impl Default for IngestOptions {
     }
 }
 
+/// When a log says its recording ended (the events form's end row, see
+/// `diagnoser::log::events`). The readers stream, and the end row comes last:
+/// it is known once every batch has been read, and shared with the reader that
+/// finds it.
+#[derive(Debug, Clone, Default)]
+pub struct LogEnd(Arc<OnceLock<Time>>);
+
+impl LogEnd {
+    /// A log that says when it ended.
+    pub fn at(t: Time) -> LogEnd {
+        let end = LogEnd::default();
+        end.set(t);
+        end
+    }
+
+    /// The declared end, once the batches are exhausted; `None` before, or when
+    /// the log does not say.
+    pub fn get(&self) -> Option<Time> {
+        self.0.get().copied()
+    }
+
+    /// Records the end a reader found (the first one counts).
+    pub(crate) fn set(&self, t: Time) {
+        let _ = self.0.set(t);
+    }
+
+    /// The time deadlines run to at the end of a replay: the last event, or the
+    /// declared end or `extra` (`--end`) when later.
+    pub fn extend(&self, last: Time, extra: Option<Time>) -> Time {
+        last.max(self.get().unwrap_or(last))
+            .max(extra.unwrap_or(last))
+    }
+}
+
 /// Batches of events, in order.
 pub type Batches = Box<dyn Iterator<Item = Result<Vec<Event>, Located>> + Send>;
 
@@ -125,6 +160,8 @@ pub struct LogStream {
     pub initial: Vec<bool>,
     /// The changes, batch by batch.
     pub batches: Batches,
+    /// When the recording ended, if the log says so; known after the batches.
+    pub end: LogEnd,
 }
 
 impl LogStream {
@@ -144,6 +181,7 @@ impl LogStream {
             start,
             initial,
             batches: Box::new(std::iter::once(Ok(events))),
+            end: LogEnd::default(),
         }
     }
 }

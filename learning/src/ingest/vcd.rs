@@ -140,6 +140,7 @@ pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogSt
         start,
         initial,
         batches: Box::new(reader),
+        end: super::LogEnd::default(),
     })
 }
 
