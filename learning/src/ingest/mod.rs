@@ -117,13 +117,6 @@ impl Default for IngestOptions {
 pub struct LogEnd(Arc<OnceLock<Time>>);
 
 impl LogEnd {
-    /// A log that says when it ended.
-    pub fn at(t: Time) -> LogEnd {
-        let end = LogEnd::default();
-        end.set(t);
-        end
-    }
-
     /// The declared end, once the batches are exhausted; `None` before, or when
     /// the log does not say.
     pub fn get(&self) -> Option<Time> {
