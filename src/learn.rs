@@ -45,6 +45,17 @@ pub struct LearnArgs {
     /// Share of samples dropped on each side of each guard (outliers), e.g. 0.001.
     #[arg(long, default_value_t = 0.0)]
     trim: f64,
+    /// How many standard deviations of the drift between runs each guard
+    /// covers (measured over the logs given, as a share of each duration; 0:
+    /// no widening for drift).
+    #[arg(long, default_value_t = 3.0)]
+    drift: f64,
+    /// Make the sensors that are wholly inputs (none of their edges follows a
+    /// clock of their part; see the report's `sensor` lines) inputs of their
+    /// part, allowed in any state. Parts whose plant entry gives `inputs` keep
+    /// those.
+    #[arg(long)]
+    learn_inputs: bool,
     /// Also write one Graphviz file per part into this directory.
     #[arg(long, value_name = "DIR")]
     dot: Option<PathBuf>,
@@ -78,6 +89,12 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
             args.margin_rel
         )));
     }
+    if !(args.drift.is_finite() && args.drift >= 0.0) {
+        return Err(bad(format!(
+            "bad --drift {}: expected a number of standard deviations >= 0",
+            args.drift
+        )));
+    }
     let ingest = IngestOptions {
         format: args.format,
         time_unit: args.time_unit.unwrap_or(plant.time_unit),
@@ -101,6 +118,8 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         margin: args.margin,
         margin_relative: args.margin_rel,
         trim: args.trim,
+        drift: args.drift,
+        learn_inputs: args.learn_inputs,
         ..LearnOptions::default()
     };
     let mut learner = Learner::new(&plant, options).map_err(bad)?;
@@ -204,6 +223,14 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
 fn print_report(model: &Model) {
     let unit = model.time_unit.name();
     let mut out = String::new();
+    let s = &model.settings;
+    if s.drift_sigma > 0.0 {
+        out.push_str(&format!(
+            "drift between the logs: {:.2} % of a duration (one standard deviation); guards cover {} of them\n",
+            100.0 * s.drift_sigma,
+            s.drift
+        ));
+    }
     for part in &model.parts {
         out.push_str(&format!(
             "\n{} ({} states, {} transitions)\n",
@@ -239,6 +266,33 @@ fn print_report(model: &Model) {
         }
         for u in &part.untimed {
             out.push_str(&format!("  untimed: {u}\n"));
+        }
+        for c in &part.sensor_classes {
+            out.push_str(&format!("  sensor {c}\n"));
+        }
+        if !part.inputs.is_empty() {
+            out.push_str(&format!("  inputs: {}\n", part.inputs.join(", ")));
+        }
+        let unapplied: Vec<&str> = part
+            .sensor_classes
+            .iter()
+            .filter_map(|c| {
+                c.split_once(": input:")
+                    .or_else(|| c.split_once(": partly an input:"))
+                    .map(|(name, _)| name)
+            })
+            .filter(|name| !part.inputs.iter().any(|i| i == name))
+            .collect();
+        if !unapplied.is_empty() {
+            out.push_str(&format!(
+                "  to let {} change in any state, write `inputs = [{}]` in the part, or learn with --learn-inputs\n",
+                unapplied.join(", "),
+                unapplied
+                    .iter()
+                    .map(|n| format!("\"{n}\""))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
         }
     }
     print!("{out}");

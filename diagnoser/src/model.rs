@@ -57,6 +57,13 @@ pub struct LearnSettings {
     pub margin_relative: f64,
     /// Share of samples trimmed on each side before widening (outliers).
     pub trim: f64,
+    /// Standard deviations of the drift between runs that each guard covers.
+    #[serde(default)]
+    pub drift: f64,
+    /// The drift between the learning logs: the relative standard deviation of
+    /// a duration's mean from one log to the next (0 from a single log).
+    #[serde(default)]
+    pub drift_sigma: f64,
 }
 
 impl Model {
@@ -124,6 +131,14 @@ pub struct PartModel {
     pub sensor_estimates: Vec<SensorEstimate>,
     /// What could not be timed, and why.
     pub untimed: Vec<String>,
+    /// The part's input sensors: the plant file's `inputs`, or those learned
+    /// with `learn --learn-inputs`. Their edges are allowed in any state.
+    #[serde(default)]
+    pub inputs: Vec<String>,
+    /// How each sensor looks in the logs (driven by the part's orders, or an
+    /// input), and why.
+    #[serde(default)]
+    pub sensor_classes: Vec<String>,
 }
 
 /// A state: one observed vector of the part's signals.

@@ -132,6 +132,21 @@ pub struct Part {
     pub sensors: Vec<SignalId>,
     /// Its moving element, target of element faults (e.g. `P`).
     pub element: Option<String>,
+    /// The sensors the element moves (`drives`): a blocked element freezes these
+    /// and no other. Without `drives`, every sensor of the part but its inputs.
+    pub drives: Vec<SignalId>,
+    /// Sensors whose edges the part's orders do not cause (an operator's refill, a
+    /// workpiece arriving, the next machine), as the plant file's `inputs` says;
+    /// `None`: as learned from the logs. Their edges are allowed in any state of
+    /// the part's motion.
+    pub inputs: Option<Vec<SignalId>>,
+}
+
+impl Part {
+    /// Whether `sensor` is one the part's element drives.
+    pub fn drives(&self, sensor: SignalId) -> bool {
+        self.element.is_some() && self.drives.contains(&sensor)
+    }
 }
 
 /// A fault label and what it means.
@@ -372,6 +387,10 @@ struct RawPart {
     sensors: Vec<Spanned<String>>,
     #[serde(default)]
     element: Option<Spanned<String>>,
+    #[serde(default)]
+    drives: Option<Vec<Spanned<String>>>,
+    #[serde(default)]
+    inputs: Option<Vec<Spanned<String>>>,
 }
 
 #[derive(Deserialize)]
@@ -543,11 +562,54 @@ impl Checker<'_> {
                     Some(e.into_inner())
                 }
             };
+            let inputs = match &p.inputs {
+                Some(names) => {
+                    Some(self.part_sensors(&signals, &sensors, names, "parts.inputs")?)
+                }
+                None => None,
+            };
+            let declared_input = |s: &SignalId| inputs.as_ref().is_some_and(|i| i.contains(s));
+            let drives = match &p.drives {
+                None => sensors
+                    .iter()
+                    .copied()
+                    .filter(|s| !declared_input(s))
+                    .collect(),
+                Some(names) => {
+                    if element.is_none()
+                        && let Some(first) = names.first()
+                    {
+                        return Err(self.at(
+                            first.span(),
+                            "parts.drives",
+                            "a part without an `element` drives nothing",
+                        ));
+                    }
+                    let drives = self.part_sensors(&signals, &sensors, names, "parts.drives")?;
+                    if let Some(n) = names.iter().find(|n| {
+                        signals
+                            .id(n.get_ref())
+                            .is_some_and(|id| declared_input(&id))
+                    }) {
+                        return Err(self.at(
+                            n.span(),
+                            "parts.drives",
+                            format!(
+                                "'{}' is an input of the part: the element cannot drive it",
+                                n.get_ref()
+                            ),
+                        ));
+                    }
+                    drives
+                }
+            };
             parts.push(Part {
                 name: p.name.into_inner(),
                 actuators,
                 sensors,
                 element,
+                drives,
+                inputs,
             });
         }
 
@@ -820,6 +882,27 @@ impl Checker<'_> {
             .collect()
     }
 
+    /// Sensors named in a part's `field`, each one of the part's `sensors`.
+    fn part_sensors(
+        &self,
+        signals: &SignalTable,
+        sensors: &[SignalId],
+        names: &[Spanned<String>],
+        field: &str,
+    ) -> Result<Vec<SignalId>, PlantError> {
+        let ids = self.signal_list(signals, names, SignalKind::Sensor, field)?;
+        for (n, id) in names.iter().zip(&ids) {
+            if !sensors.contains(id) {
+                return Err(self.at(
+                    n.span(),
+                    field,
+                    format!("'{}' is not one of the part's sensors", n.get_ref()),
+                ));
+            }
+        }
+        Ok(ids)
+    }
+
     fn check_template(
         &self,
         t: &FaultTemplate,
@@ -853,6 +936,12 @@ impl Checker<'_> {
                         return Err(format!(
                             "'{s}' in {t} is not a sensor of part '{}'",
                             part.name
+                        ));
+                    }
+                    if !part.drives.iter().any(|&id| signals.name(id) == *s) {
+                        return Err(format!(
+                            "'{s}' in {t} is not a sensor that element '{}' drives (its `drives`)",
+                            args[0]
                         ));
                     }
                 }
@@ -1047,7 +1136,7 @@ fn default_faults(parts: &[Part], signals: &SignalTable) -> Vec<FaultDef> {
             );
         }
         if let Some(e) = &part.element {
-            for &s in &part.sensors {
+            for &s in &part.drives {
                 let at = signals.name(s).to_string();
                 push(
                     format!("{e}.blocked_at.{at}"),
@@ -1058,8 +1147,8 @@ fn default_faults(parts: &[Part], signals: &SignalTable) -> Vec<FaultDef> {
                     &mut out,
                 );
             }
-            for &from in &part.sensors {
-                for &to in &part.sensors {
+            for &from in &part.drives {
+                for &to in &part.drives {
                     if from != to {
                         let (from, to) =
                             (signals.name(from).to_string(), signals.name(to).to_string());

@@ -172,3 +172,91 @@ fn unexplained_deviations_are_consequences_of_a_modelled_fault() {
     // Nothing changes: no new line.
     assert!(c.update(0, &verdict("turntable", &["F2"])).is_none());
 }
+
+/// The swivel arm of `fixtures/diagnosis/arm.toml`, its hand-made model, and the
+/// final labels of a replay of `(t ms, signal, value)` events from the state
+/// `B1=1`, ending at `end` ms. `plant_text` edits the plant file.
+fn arm_labels(
+    edit: impl Fn(String) -> String,
+    events: &[(i64, &str, bool)],
+    end: i64,
+) -> Vec<String> {
+    let text = std::fs::read_to_string(repo("diagnoser/tests/fixtures/diagnosis/arm.toml"))
+        .expect("plant");
+    let plant = Plant::parse(&edit(text), Path::new("arm.toml")).expect("plant parses");
+    let model = Model::from_path(&repo("diagnoser/tests/fixtures/diagnosis/arm-model.json"))
+        .expect("model");
+    let mut d =
+        PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
+    let ms = diagnoser::MS;
+    let initial: Vec<bool> = ["Y1", "Y2", "B1", "B2", "B3"]
+        .iter()
+        .map(|&s| s == "B1")
+        .collect();
+    let mut verdicts = Vec::new();
+    d.start(0, &initial);
+    for &(t, name, value) in events {
+        let signal = plant.signals.id(name).expect("signal");
+        d.push(
+            diagnoser::Event {
+                t: t * ms,
+                signal,
+                value,
+            },
+            &mut |v| verdicts.push(v),
+        );
+    }
+    d.finish(end * ms, &mut |v| verdicts.push(v));
+    verdicts
+        .iter()
+        .rev()
+        .find(|v| v.part == "arm")
+        .map_or_else(|| vec!["N".to_string()], |v| v.labels.clone())
+}
+
+/// Vacuum on, swivel to the conveyor: the arm is at B2 with the vacuum on at 720 ms.
+const ARM_TO_CONVEYOR: [(i64, &str, bool); 5] = [
+    (100, "Y2", true),
+    (150, "B3", true),
+    (200, "Y1", true),
+    (220, "B1", false),
+    (720, "B2", true),
+];
+
+#[test]
+fn a_blocked_arm_does_not_explain_a_vacuum_switch_that_stays_on() {
+    let mut events = ARM_TO_CONVEYOR.to_vec();
+    // Vacuum off: B3 never falls.
+    events.push((800, "Y2", false));
+    let labels = arm_labels(|t| t, &events, 2000);
+    assert!(labels.contains(&"B3.stuck1".to_string()), "{labels:?}");
+    assert!(
+        labels.contains(&"Y2.actuator_stuck1".to_string()),
+        "{labels:?}"
+    );
+    assert!(
+        !labels.contains(&"A.blocked_at.B2".to_string()),
+        "{labels:?}"
+    );
+    // Without `drives`, the element freezes every sensor of its part, the
+    // vacuum switch included, and so explains it.
+    let all = arm_labels(
+        |t| t.replace("drives = [\"B1\", \"B2\"]\n", ""),
+        &events,
+        2000,
+    );
+    assert!(all.contains(&"A.blocked_at.B2".to_string()), "{all:?}");
+}
+
+#[test]
+fn a_blocked_arm_keeps_its_label_while_the_vacuum_switch_moves() {
+    let mut events = ARM_TO_CONVEYOR.to_vec();
+    // Blocked at the conveyor: the vacuum still goes off, the arm never leaves B2.
+    events.extend([(800, "Y2", false), (850, "B3", false), (900, "Y1", false)]);
+    let labels = arm_labels(|t| t, &events, 2000);
+    assert!(
+        labels.contains(&"A.blocked_at.B2".to_string()),
+        "{labels:?}"
+    );
+    assert!(!labels.contains(&"B3.stuck1".to_string()), "{labels:?}");
+}

@@ -153,3 +153,44 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
     }
     assert_eq!(map.flag("suspect_C4"), Some(200));
 }
+
+#[test]
+fn an_element_blocks_only_the_sensors_it_drives() {
+    let plant = parse(
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/plants/good_drives_inputs.toml"),
+    )
+    .expect("parses");
+    let part = &plant.parts[0];
+    let names = |ids: &[diagnoser::SignalId]| -> Vec<String> {
+        ids.iter()
+            .map(|&s| plant.signals.name(s).to_string())
+            .collect()
+    };
+    assert_eq!(names(&part.drives), ["B1", "B2"]);
+    assert_eq!(names(part.inputs.as_deref().expect("declared")), ["B4"]);
+    // Default faults block the element at, and between, the sensors it drives
+    // only: the vacuum switch and the magazine's sensor are not positions.
+    let labels: Vec<&str> = plant.faults.iter().map(|f| f.label.as_str()).collect();
+    assert!(labels.contains(&"A.blocked_at.B1"), "{labels:?}");
+    assert!(labels.contains(&"A.blocked_between.B2.B1"), "{labels:?}");
+    assert!(
+        !labels
+            .iter()
+            .any(|l| l.contains("blocked") && l.contains("B3"))
+    );
+    assert!(
+        !labels
+            .iter()
+            .any(|l| l.contains("blocked") && l.contains("B4"))
+    );
+
+    // Without `drives`, the element drives every sensor but the inputs.
+    let text = fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_drives_inputs.toml"),
+    )
+    .expect("reads")
+    .replace("drives = [\"B1\", \"B2\"]\n", "");
+    let plant = Plant::parse(&text, Path::new("x.toml")).expect("parses");
+    assert_eq!(names(&plant.parts[0].drives), ["B1", "B2", "B3"]);
+}

@@ -218,6 +218,18 @@ fn on_a_generated_plant_a_fault_after_an_unknown_episode_is_still_labelled() {
                 plant.scan_period,
             );
             let verdicts = own(&as_log(&sink, run.log.end), &mut diagnoser);
+            // A stuck order whose motion the clocks no longer date may explain
+            // every sensor flipping at once (the element crossing in one scan):
+            // that scan is not one that no fault explains, so it tests nothing here.
+            if verdicts
+                .first()
+                .is_some_and(|v| v.t == at && v.labels != ["unknown"] && !v.flags.is_empty())
+                && !verdicts
+                    .iter()
+                    .any(|v| v.labels == ["unknown"] && v.t <= at + plant.scan_period)
+            {
+                return;
+            }
             let what = format!("plant {seed}, {} at {at}: {verdicts:#?}", run.fault.label);
             // The flipped sensors may first read as a fault; flipping back is
             // explained by none.

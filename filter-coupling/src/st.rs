@@ -1474,6 +1474,8 @@ expr = "C6 & !A4"
                 margin: 10.0,
                 margin_relative: 0.0,
                 trim: 0.0,
+                drift: 0.0,
+                drift_sigma: 0.0,
             },
             parts: vec![PartModel {
                 name: "turntable".into(),
@@ -1503,6 +1505,8 @@ expr = "C6 & !A4"
                     uncertain: vec!["I2".into()],
                 }],
                 untimed: Vec::new(),
+                inputs: vec![],
+                sensor_classes: vec![],
             }],
         }
     }

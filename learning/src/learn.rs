@@ -27,6 +27,18 @@ pub struct LearnOptions {
     /// Share of samples dropped on each side before widening (outliers); 0 keeps
     /// the learned min and max.
     pub trim: f64,
+    /// How many standard deviations of the drift between runs each guard
+    /// covers. Runs drift (wear, temperature, supply pressure): a duration's
+    /// mean differs from one log to the next. The drift is measured, as a share
+    /// of each duration, over every timed transition of the plant and every log
+    /// (so three logs already say much), and each guard widened so that a new
+    /// run's mean within this many deviations stays inside. With a single log
+    /// there is no drift to see, and no widening. 0 turns it off.
+    pub drift: f64,
+    /// Make the sensors that are wholly inputs (no edge caused by their part)
+    /// inputs of their parts, unless the plant file gives the part's `inputs`.
+    /// Sensors that are partly inputs never are: declare them by hand.
+    pub learn_inputs: bool,
     /// Another edge replaces the command clock as a transition's clock when its
     /// interval is at most this fraction of the command clock's.
     pub tight_ratio: f64,
@@ -47,6 +59,8 @@ impl Default for LearnOptions {
             margin: None,
             margin_relative: 0.0,
             trim: 0.0,
+            drift: 3.0,
+            learn_inputs: false,
             tight_ratio: 0.5,
             timed_spread: diagnoser::SECOND,
             timed_relative: 0.2,
@@ -124,7 +138,7 @@ impl<'p> Learner<'p> {
         self.logs.push(log.path.display().to_string());
         let mut states = self.routes.states(&log.initial);
         for (part, &state) in self.parts.iter_mut().zip(&states) {
-            part.start_log(state);
+            part.start_log(self.logs.len() - 1, state);
         }
         let parts = &mut self.parts;
         let (read, last_t) = self.routes.replay(
@@ -150,15 +164,30 @@ impl<'p> Learner<'p> {
     pub fn finish(self) -> Model {
         let unit = self.plant.time_unit;
         let scale = unit.nanos() as f64;
+        let sigma = self.drift_sigma();
         let settings = LearnSettings {
             margin: self.margin as f64 / scale,
             margin_relative: self.options.margin_relative,
             trim: self.options.trim,
+            drift: self.options.drift,
+            drift_sigma: sigma,
+        };
+        let widening = Widening {
+            margin: self.margin,
+            drift: self.options.drift * sigma,
         };
         let parts = self
             .parts
             .iter()
-            .map(|p| p.model(&self.options, self.margin, scale))
+            .zip(&self.plant.parts)
+            .map(|(p, part)| {
+                let declared = part.inputs.as_ref().map(|ids| {
+                    ids.iter()
+                        .map(|&s| self.plant.signals.name(s).to_string())
+                        .collect()
+                });
+                p.model(&self.options, widening, scale, declared)
+            })
             .collect();
         Model {
             version: MODEL_VERSION,
@@ -172,6 +201,33 @@ impl<'p> Learner<'p> {
             },
             settings,
             parts,
+        }
+    }
+
+    /// The drift between runs, as a relative standard deviation of a duration's
+    /// mean from one log to the next: pooled over the timed transitions of every
+    /// part (each weighted by its squared mean, so that long, precisely measured
+    /// motions count most), 0 with fewer than two logs.
+    fn drift_sigma(&self) -> f64 {
+        let (mut squares, mut weight) = (0.0, 0.0);
+        for acc in self.parts.iter().flat_map(|p| {
+            let act = p.act_mask();
+            p.trans.iter().filter(move |t| t.changed & !act != 0)
+        }) {
+            let h = &acc.command;
+            let means = h.log_means();
+            if means.len() < 2 || h.n < self.options.min_samples || !h.tight(&self.options) {
+                continue;
+            }
+            let k = means.len() as f64;
+            let mean = means.iter().sum::<f64>() / k;
+            squares += means.iter().map(|m| (m - mean).powi(2)).sum::<f64>();
+            weight += (k - 1.0) * mean * mean;
+        }
+        if weight > 0.0 {
+            (squares / weight).sqrt()
+        } else {
+            0.0
         }
     }
 
@@ -215,18 +271,40 @@ type FastMap<K, V> = HashMap<K, V, BuildHasherDefault<IntHasher>>;
 /// Most distinct durations a histogram keeps before it coarsens its bins.
 const MAX_BINS: usize = 4096;
 
+/// How a learned interval is widened into a guard.
+#[derive(Debug, Clone, Copy)]
+struct Widening {
+    /// On each side, in nanoseconds.
+    margin: Time,
+    /// The drift between runs to cover: relative standard deviation times the
+    /// number of deviations ([`LearnOptions::drift`]).
+    drift: f64,
+}
+
+/// Fewest samples of one log for its mean duration to count in the drift
+/// between logs.
+const MIN_LOG_SAMPLES: u64 = 5;
+
 /// A histogram of durations, exact while they take few distinct values (PLC logs
 /// are quantised by the scan period); beyond [`MAX_BINS`] values it merges bins
-/// pairwise, so quantiles stay within one bin width.
+/// pairwise, so quantiles stay within one bin width. It also keeps each log's
+/// sample count and sum, for the drift between logs.
 #[derive(Debug, Clone, Default)]
 struct Hist {
     bins: FastMap<i64, u64>,
     n: u64,
     shift: u32,
+    /// Per log (by index): samples and their sum.
+    logs: Vec<(u64, i128)>,
 }
 
 impl Hist {
-    fn add(&mut self, d: Time) {
+    fn add(&mut self, d: Time, log: usize) {
+        if self.logs.len() <= log {
+            self.logs.resize(log + 1, (0, 0));
+        }
+        self.logs[log].0 += 1;
+        self.logs[log].1 += i128::from(d);
         *self.bins.entry(d >> self.shift).or_insert(0) += 1;
         self.n += 1;
         if self.bins.len() > MAX_BINS {
@@ -236,6 +314,42 @@ impl Hist {
                 *self.bins.entry(k >> 1).or_insert(0) += c;
             }
         }
+    }
+
+    /// The mean duration of each log with at least [`MIN_LOG_SAMPLES`] samples.
+    fn log_means(&self) -> Vec<f64> {
+        self.logs
+            .iter()
+            .filter(|(n, _)| *n >= MIN_LOG_SAMPLES)
+            .map(|&(n, sum)| sum as f64 / n as f64)
+            .collect()
+    }
+
+    /// Whether the durations keep close together (the learner's test of a
+    /// timed transition): a spread of at most `timed_spread`, or at most
+    /// `timed_relative` of the median.
+    fn tight(&self, options: &LearnOptions) -> bool {
+        let s = self.sorted();
+        let q = |p: f64| Hist::quantile(&s, self.n, p) as f64;
+        let spread = q(0.99) - q(0.01);
+        spread <= options.timed_spread as f64 || spread <= options.timed_relative * q(0.5)
+    }
+
+    /// How far beyond its learned logs' means, below and above, a new run's mean
+    /// may land: `reach` (relative drift times deviations) around their mean,
+    /// scaled for the few logs it is estimated from.
+    fn drift_reach(&self, reach: f64) -> (f64, f64) {
+        let means = self.log_means();
+        if means.len() < 2 || reach <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let k = means.len() as f64;
+        let mean = means.iter().sum::<f64>() / k;
+        let half = reach * mean * (1.0 + 1.0 / k).sqrt();
+        let (lo, hi) = means
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(lo, hi), &m| (lo.min(m), hi.max(m)));
+        ((lo - (mean - half)).max(0.0), (mean + half - hi).max(0.0))
     }
 
     fn sorted(&self) -> Vec<(i64, u64)> {
@@ -261,7 +375,7 @@ impl Hist {
         sorted.last().map_or(0, |&(v, _)| v)
     }
 
-    fn guard(&self, options: &LearnOptions, margin: Time, scale: f64) -> Guard {
+    fn guard(&self, options: &LearnOptions, widening: Widening, scale: f64) -> Guard {
         let s = self.sorted();
         let n = self.n;
         let min = s.first().map_or(0, |&(v, _)| v);
@@ -272,7 +386,8 @@ impl Hist {
         } else {
             (min, max)
         };
-        let widen = margin as f64 + options.margin_relative * (hi - lo) as f64;
+        let widen = widening.margin as f64 + options.margin_relative * (hi - lo) as f64;
+        let (below, above) = self.drift_reach(widening.drift);
         Guard {
             n,
             min: min as f64 / scale,
@@ -280,8 +395,8 @@ impl Hist {
             q50: q(0.5) as f64 / scale,
             q99: q(0.99) as f64 / scale,
             max: max as f64 / scale,
-            lo: ((lo as f64 - widen).max(0.0)) / scale,
-            hi: (hi as f64 + widen) / scale,
+            lo: ((lo as f64 - widen - below).max(0.0)) / scale,
+            hi: (hi as f64 + widen + above) / scale,
         }
     }
 
@@ -331,6 +446,8 @@ struct Episode {
 
 struct PartLearner {
     name: String,
+    /// Index of the log being read.
+    log: usize,
     names: Vec<String>,
     n_act: usize,
     origin: Option<Time>,
@@ -350,6 +467,7 @@ impl PartLearner {
         let n = names.len();
         PartLearner {
             name,
+            log: 0,
             names,
             n_act,
             origin: None,
@@ -381,7 +499,8 @@ impl PartLearner {
         id
     }
 
-    fn start_log(&mut self, state: u64) {
+    fn start_log(&mut self, log: usize, state: u64) {
+        self.log = log;
         self.origin = None;
         self.last_edge.iter_mut().for_each(|e| *e = None);
         self.episode = None;
@@ -419,11 +538,11 @@ impl PartLearner {
         let acc = &mut self.trans[idx];
         acc.count += 1;
         if let Some(o) = self.origin {
-            acc.command.add(t - o);
+            acc.command.add(t - o, self.log);
         }
         for (r, last) in self.last_edge.iter().enumerate() {
             if let Some(l) = last {
-                acc.refs[r].add(t - l);
+                acc.refs[r].add(t - l, self.log);
             }
         }
         for bit in 0..n {
@@ -507,9 +626,15 @@ impl PartLearner {
         format!("{edge}({})", self.names[r / 2])
     }
 
-    fn model(&self, options: &LearnOptions, margin: Time, scale: f64) -> PartModel {
+    fn model(
+        &self,
+        options: &LearnOptions,
+        widening: Widening,
+        scale: f64,
+        declared_inputs: Option<Vec<String>>,
+    ) -> PartModel {
         let mut untimed = Vec::new();
-        let mut transitions = Vec::new();
+        let mut transitions: Vec<TransitionModel> = Vec::new();
         for (id, acc) in self.trans.iter().enumerate() {
             let event = self.event_name(acc.changed, acc.to_vec);
             let command = acc.changed & self.act_mask() != 0;
@@ -540,7 +665,7 @@ impl PartLearner {
                     "{event}: never preceded by a command or another edge of the part"
                 ));
             }
-            let guard = hist.guard(options, margin, scale);
+            let guard = hist.guard(options, widening, scale);
             let spread = guard.q99 - guard.q01;
             let timed = sensed
                 && hist.n >= options.min_samples
@@ -558,7 +683,7 @@ impl PartLearner {
                 ));
             }
             let command_guard = if clock != "command" && acc.command.n > 0 {
-                Some(acc.command.guard(options, margin, scale))
+                Some(acc.command.guard(options, widening, scale))
             } else {
                 None
             };
@@ -575,6 +700,29 @@ impl PartLearner {
                 timed,
             });
         }
+        // Before the rules below untime whole states: whether each transition's
+        // own timing follows a clock of the part.
+        let own_timing: Vec<bool> = transitions.iter().map(|t| t.timed).collect();
+        let (inputs, sensor_classes) = match declared_inputs {
+            Some(names) => {
+                let classes = self.names[self.n_act..]
+                    .iter()
+                    .map(|n| {
+                        let what = if names.contains(n) { "input" } else { "driven" };
+                        format!("{n}: {what}, as the plant file's `inputs` says")
+                    })
+                    .collect();
+                (names, classes)
+            }
+            None => {
+                let (inputs, _partial, classes) = self.classify_sensors(&own_timing, options);
+                if options.learn_inputs {
+                    (inputs, classes)
+                } else {
+                    (Vec::new(), classes)
+                }
+            }
+        };
 
         // A reaction (sensor edge and command in one scan) out of a state that a
         // command alone also leaves is the control's choice as much as the
@@ -629,9 +777,15 @@ impl PartLearner {
                     .iter()
                     .filter(|t| !t.command || (t.timed && sensed(t)))
                     .collect();
-                let expected = if sensor_out.iter().all(|t| t.timed) {
+                // A control that may also leave the state by itself (a timeout)
+                // may do so as late as it was seen to: the state's deadline
+                // waits for that order too.
+                let timeouts = out.iter().filter(|t| t.command && !sensed(t));
+                let expected = if sensor_out.iter().all(|t| t.timed) && !sensor_out.is_empty() {
                     sensor_out
                         .iter()
+                        .copied()
+                        .chain(timeouts)
                         .map(|t| Expectation {
                             transition: t.id,
                             event: t.event.clone(),
@@ -652,7 +806,7 @@ impl PartLearner {
             })
             .collect();
 
-        let (estimates, sensor_estimates) = self.estimates(margin, scale, &mut untimed);
+        let (estimates, sensor_estimates) = self.estimates(widening.margin, scale, &mut untimed);
         PartModel {
             name: self.name.clone(),
             signals: self.names.clone(),
@@ -662,7 +816,70 @@ impl PartLearner {
             estimates,
             sensor_estimates,
             untimed,
+            inputs,
+            sensor_classes,
         }
+    }
+
+    /// How each sensor of the part looks in the logs. For each edge (rises,
+    /// falls) seen often enough to judge, it is *caused* when more than one in
+    /// ten of its occurrences follow a clock of the part (a timed transition),
+    /// else it comes from outside the part's motion: an operator, a workpiece,
+    /// another machine. A sensor with no caused edge is an input; one with both
+    /// kinds (a place sensor: a workpiece arrives when it comes, and leaves when
+    /// the part takes it) is partly one. Returns the inputs, the partial
+    /// inputs, and per sensor the reason.
+    fn classify_sensors(
+        &self,
+        own_timing: &[bool],
+        options: &LearnOptions,
+    ) -> (Vec<String>, Vec<String>, Vec<String>) {
+        let (mut inputs, mut partial, mut classes) = (Vec::new(), Vec::new(), Vec::new());
+        for bit in self.n_act..self.names.len() {
+            let name = &self.names[bit];
+            let (mut outside, mut caused) = (Vec::new(), Vec::new());
+            for rising in [true, false] {
+                let (mut seen, mut timed) = (0u64, 0u64);
+                for (acc, &own) in self.trans.iter().zip(own_timing) {
+                    if acc.changed >> bit & 1 == 1 && (acc.to_vec >> bit & 1 == 1) == rising {
+                        seen += acc.count;
+                        if own {
+                            timed += acc.count;
+                        }
+                    }
+                }
+                let edge = if rising { "rises" } else { "falls" };
+                let text = format!("{timed} of {seen} {edge}");
+                if seen >= options.min_samples && timed * 10 <= seen {
+                    outside.push(text);
+                } else if seen > 0 {
+                    caused.push(text);
+                }
+            }
+            let class = match (outside.is_empty(), caused.is_empty()) {
+                (false, true) => {
+                    inputs.push(name.clone());
+                    format!(
+                        "input: {} follow a clock of the part: an operator, a workpiece or another machine moves it",
+                        outside.join(", ")
+                    )
+                }
+                (false, false) => {
+                    partial.push(name.clone());
+                    format!(
+                        "partly an input: {} follow a clock of the part, but {} do",
+                        outside.join(", "),
+                        caused.join(", ")
+                    )
+                }
+                (true, true) => "driven: it never changed".to_string(),
+                (true, false) => {
+                    format!("driven: {} follow a clock of the part", caused.join(", "))
+                }
+            };
+            classes.push(format!("{name}: {class}"));
+        }
+        (inputs, partial, classes)
     }
 
     fn estimates(

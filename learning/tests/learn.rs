@@ -159,3 +159,84 @@ fn a_model_accepts_another_normal_run_and_catches_f2() {
     );
     assert!(first.message.contains("FE(C4)"), "{}", first.message);
 }
+
+/// One log of a cylinder `Y`→`B` whose stroke takes `stroke` ms, 40 cycles.
+fn cylinder_log(stroke: i64, name: &str, plant: &diagnoser::Plant) -> LogStream {
+    let (y, b) = (
+        plant.signals.id("Y").expect("Y"),
+        plant.signals.id("B").expect("B"),
+    );
+    let mut events = Vec::new();
+    for k in 0..40i64 {
+        let t = 1000 + k * 4000;
+        for (dt, signal, value) in [
+            (0, y, true),
+            (stroke, b, true),
+            (2000, y, false),
+            (2000 + stroke, b, false),
+        ] {
+            events.push(diagnoser::Event {
+                t: (t + dt) * MS,
+                signal,
+                value,
+            });
+        }
+    }
+    LogStream {
+        path: PathBuf::from(name),
+        format: LogFormat::EventsCsv,
+        time: TimeFormat::Numeric(TimeUnit::Ms),
+        start: 0,
+        initial: vec![false, false],
+        batches: Box::new(std::iter::once(Ok(events))),
+        end: Default::default(),
+    }
+}
+
+fn stroke_guard(strokes: &[i64], drift: f64) -> diagnoser::model::Guard {
+    let plant = diagnoser::Plant::parse(
+        "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
+         B = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\nactuators = [\"Y\"]\nsensors = [\"B\"]\n",
+        std::path::Path::new("c.toml"),
+    )
+    .expect("plant");
+    let options = LearnOptions {
+        drift,
+        ..LearnOptions::default()
+    };
+    let mut learner = Learner::new(&plant, options).expect("learner");
+    for (i, &s) in strokes.iter().enumerate() {
+        learner
+            .learn_log(cylinder_log(s, &format!("run{i}"), &plant), |_| {})
+            .expect("learns");
+    }
+    let model = learner.finish();
+    part(&model, "cyl")
+        .transitions
+        .iter()
+        .find(|t| t.event == "RE(B)")
+        .expect("RE(B)")
+        .guard
+}
+
+#[test]
+fn guards_widen_by_the_drift_between_logs() {
+    let close = |g: diagnoser::model::Guard, lo: f64, hi: f64| {
+        assert!(
+            (g.lo - lo).abs() < 0.01 && (g.hi - hi).abs() < 0.01,
+            "[{}, {}], expected [{lo}, {hi}]",
+            g.lo,
+            g.hi
+        );
+    };
+    // One log: one scan period of margin, no drift to see.
+    close(stroke_guard(&[500], 3.0), 490.0, 510.0);
+    close(stroke_guard(&[500, 520], 0.0), 490.0, 530.0);
+    // Two logs 20 ms apart: a relative drift of 20/510/sqrt(2) per run, and a
+    // third run's mean within 3 of them (times sqrt(1 + 1/2) for the mean's own
+    // error) around 510 ms: 510 ± 51.97 ms.
+    close(stroke_guard(&[500, 520], 3.0), 448.03, 571.97);
+    // A third log at the same spread says the drift is smaller than two
+    // suggested: a narrower guard.
+    close(stroke_guard(&[500, 510, 520], 3.0), 465.36, 554.64);
+}

@@ -177,7 +177,7 @@ fn parts(layout: &Layout, out: &mut String) {
     comment(
         "One part per component: its orders, its switches, and the sensors of the \
          places it takes workpieces from. The moving element of a cylinder, arm or \
-         table is named after it.",
+         table is named after it, and drives its end switches only.",
         out,
     );
     for p in &layout.parts {
@@ -189,7 +189,10 @@ fn parts(layout: &Layout, out: &mut String) {
             list(layout, &p.sensors)
         );
         if let Some(e) = p.element {
-            let _ = writeln!(out, "element = {}", quoted(&layout.axes[e].tag));
+            let axis = &layout.axes[e];
+            let ends: Vec<usize> = axis.at0.into_iter().chain(axis.at1).collect();
+            let _ = writeln!(out, "element = {}", quoted(&axis.tag));
+            let _ = writeln!(out, "drives = {}", list(layout, &ends));
         }
     }
 }

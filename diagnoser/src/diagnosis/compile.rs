@@ -89,9 +89,10 @@ impl Commands<'_> {
             Commands::Filter(allowed) => allowed(obs, obs ^ changed),
             Commands::Learned => {
                 changed & part.actuator_mask() == 0
-                    || part
-                        .model_state(obs)
-                        .is_some_and(|s| part.moves(s).iter().any(|m| m.changed == changed))
+                    || part.model_state(obs).is_some_and(|s| {
+                        let motion = part.motion(changed);
+                        part.moves(s).iter().any(|m| m.changed == motion)
+                    })
             }
         }
     }

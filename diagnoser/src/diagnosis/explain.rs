@@ -91,9 +91,10 @@ pub(crate) fn reason(
             };
             if normal_lost {
                 // Was it a known transition out of its window, or unknown there?
-                let known = part
-                    .model_state(obs)
-                    .and_then(|st| part.moves(st).iter().find(|m| m.changed == changed));
+                let known = part.model_state(obs).and_then(|st| {
+                    let motion = part.motion(changed);
+                    part.moves(st).iter().find(|m| m.changed == motion)
+                });
                 match known {
                     Some(m) => s.push_str(&format!(
                         ", outside its window {} after {}",

@@ -90,18 +90,22 @@ pub enum ModeKind {
         value: bool,
     },
     /// The element cannot leave the position of the sensor at `bit`: once there,
-    /// the part's sensors no longer change.
+    /// the sensors it drives no longer change.
     BlockedAt {
         /// Bit of the position's sensor.
         bit: u8,
+        /// Bits of the sensors the element drives (the plant file's `drives`).
+        drives: u32,
     },
     /// The element stops in transit from the position of `from` to that of `to`:
-    /// once it has left `from` towards `to`, the part's sensors no longer change.
+    /// once it has left `from` towards `to`, the sensors it drives no longer change.
     BlockedBetween {
         /// Bit of the sensor of the position it leaves.
         from: u8,
         /// Bit of the sensor of the position it never reaches.
         to: u8,
+        /// Bits of the sensors the element drives.
+        drives: u32,
     },
 }
 
@@ -180,7 +184,11 @@ pub struct PartDiagnoser {
     /// Names of the partitions the part's faults belong to (flags `def_<name>`).
     pub partitions: Vec<String>,
     act_mask: u32,
-    /// Model state of each known state vector.
+    /// Bits of the part's input sensors: edges that no order causes, allowed in
+    /// any state, and not part of the motion state.
+    inputs: u32,
+    /// Motion state of each known motion vector (a state vector without its
+    /// inputs' bits).
     states: HashMap<u32, usize>,
     /// The state vector of each model state.
     vectors: Vec<u32>,
@@ -269,8 +277,11 @@ impl PartDiagnoser {
             })
         };
 
-        let mut states = HashMap::new();
-        let mut vectors = Vec::with_capacity(model.states.len());
+        let inputs = input_mask(plant, part, model, &bit_of);
+        // The model's states as learned (`learned`), and the motion states the
+        // diagnoser runs on: the learned ones with the inputs' bits cleared, so
+        // that an input's edge may come in any of them.
+        let mut learned = Vec::with_capacity(model.states.len());
         for (i, s) in model.states.iter().enumerate() {
             if s.values.len() != names.len() {
                 return Err(format!(
@@ -285,43 +296,47 @@ impl PartDiagnoser {
                 .iter()
                 .enumerate()
                 .fold(0u32, |v, (b, &x)| v | (u32::from(x) << b));
-            states.insert(v, i);
-            vectors.push(v);
+            learned.push(v);
         }
+        let mut states = HashMap::new();
+        let mut vectors = Vec::new();
+        let motion_state: Vec<usize> = learned
+            .iter()
+            .map(|&v| {
+                *states.entry(v & !inputs).or_insert_with(|| {
+                    vectors.push(v & !inputs);
+                    vectors.len() - 1
+                })
+            })
+            .collect();
         let to_ns = |x: f64| (x * scale).round() as Time;
         let mut moves: Vec<Vec<Move>> = vec![Vec::new(); vectors.len()];
         let mut events = Vec::with_capacity(model.transitions.len());
         let mut windows = Vec::with_capacity(model.transitions.len());
         for t in &model.transitions {
-            let (Some(&from), Some(&to)) = (vectors.get(t.from), vectors.get(t.to)) else {
+            let (Some(&from), Some(&to)) = (learned.get(t.from), learned.get(t.to)) else {
                 return Err(format!(
                     "part '{}': transition {} joins unknown states",
                     part.name, t.id
                 ));
             };
-            moves[t.from].push(Move {
+            events.push(t.event.clone());
+            windows.push((clock_index(&t.clock)?, to_ns(t.guard.hi), t.timed));
+            let changed = (from ^ to) & !inputs;
+            if changed == 0 {
+                continue; // an input's edge alone: allowed anywhere
+            }
+            moves[motion_state[t.from]].push(Move {
                 id: t.id,
-                changed: from ^ to,
-                command: (from ^ to) & act_mask != 0,
+                changed,
+                command: changed & act_mask != 0,
                 clock: clock_index(&t.clock)?,
                 lo: to_ns(t.guard.lo),
                 hi: to_ns(t.guard.hi),
                 timed: t.timed,
             });
-            events.push(t.event.clone());
-            windows.push((clock_index(&t.clock)?, to_ns(t.guard.hi), t.timed));
         }
-        let mut expected = vec![Vec::new(); vectors.len()];
-        for (i, s) in model.states.iter().enumerate() {
-            if s.stable {
-                continue;
-            }
-            for e in &s.expected {
-                if let Some(k) = moves[i].iter().position(|m| m.id == e.transition) {
-                    expected[i].push(k);
-                }
-            }
-        }
+        let expected = expectations(model, &motion_state, &moves);
 
         let mut modes = vec![Mode {
             label: "N".to_string(),
@@ -330,8 +345,14 @@ impl PartDiagnoser {
             partition: None,
         }];
         let mut partitions: Vec<String> = Vec::new();
+        let drives = part
+            .drives
+            .iter()
+            .filter_map(|&s| bit_of(plant.signals.name(s)))
+            .fold(0u32, |m, b| m | 1 << b)
+            & !inputs;
         for f in &plant.faults {
-            let Some(kind) = mode_kind(&f.template, part, &bit_of) else {
+            let Some(kind) = mode_kind(&f.template, part, drives, &bit_of) else {
                 continue;
             };
             if let ModeKind::Glitch { bit, value } = kind {
@@ -367,6 +388,7 @@ impl PartDiagnoser {
             ));
         }
         Ok(PartDiagnoser {
+            inputs,
             name: part.name.clone(),
             signals,
             names,
@@ -395,9 +417,19 @@ impl PartDiagnoser {
         &self.vectors
     }
 
-    /// The model state of a state vector, if the model knows it.
+    /// Bits of the part's input sensors.
+    pub fn input_mask(&self) -> u32 {
+        self.inputs
+    }
+
+    /// A state vector's motion: its bits but the inputs'.
+    pub fn motion(&self, vector: u32) -> u32 {
+        vector & !self.inputs
+    }
+
+    /// The motion state of a state vector, if the model knows it.
     pub fn model_state(&self, vector: u32) -> Option<usize> {
-        self.states.get(&vector).copied()
+        self.states.get(&self.motion(vector)).copied()
     }
 
     /// Transitions out of a model state.
@@ -461,11 +493,17 @@ impl PartDiagnoser {
         }
     }
 
+    /// Whether `h` is a blocked element's hypothesis (blocked or not yet).
     fn frozen(&self, h: Hypothesis) -> bool {
-        matches!(
-            self.modes[h.mode as usize].kind,
-            ModeKind::BlockedAt { .. } | ModeKind::BlockedBetween { .. }
-        )
+        self.frozen_bits(h) != 0
+    }
+
+    /// Bits that cannot change under `h`: the sensors its blocked element drives.
+    fn frozen_bits(&self, h: Hypothesis) -> u32 {
+        match self.modes[h.mode as usize].kind {
+            ModeKind::BlockedAt { drives, .. } | ModeKind::BlockedBetween { drives, .. } => drives,
+            _ => 0,
+        }
     }
 
     /// The reading of `clock` as hypothesis `h` sees it: `None` when unknown to it
@@ -504,10 +542,11 @@ impl PartDiagnoser {
     }
 
     /// Whether `h` has outstayed its state: every expected event's deadline passed.
+    /// An expected order is the control's timeout: the state may last until the
+    /// latest it was seen to come.
+    /// A blocked element waits for ever where an expected event moves it, but
+    /// the part's other sensors keep their deadlines.
     fn expired(&self, h: Hypothesis, readings: &Readings) -> bool {
-        if self.frozen(h) {
-            return false;
-        }
         if let Some((clock, limit)) = self.glitch_deadline(h)
             && readings
                 .get(clock as usize)
@@ -521,10 +560,13 @@ impl PartDiagnoser {
             return false;
         };
         let exp = &self.expected[s];
+        let frozen = self.frozen_bits(h);
         !exp.is_empty()
             && exp.iter().all(|&k| {
                 let m = &self.moves[s][k];
-                m.timed && self.reading(h, m.clock, readings).is_some_and(|c| c > m.hi)
+                (m.timed || m.command)
+                    && m.changed & frozen == 0
+                    && self.reading(h, m.clock, readings).is_some_and(|c| c > m.hi)
             })
     }
 
@@ -585,8 +627,8 @@ impl PartDiagnoser {
                         None
                     }
                 }
-                ModeKind::BlockedAt { bit: b } => bit(b).then_some(h.phys),
-                ModeKind::BlockedBetween { from, to } => {
+                ModeKind::BlockedAt { bit: b, .. } => bit(b).then_some(h.phys),
+                ModeKind::BlockedBetween { from, to, .. } => {
                     let in_transit = !bit(from)
                         && !bit(to)
                         && self.model_state(h.phys).is_some_and(|s| {
@@ -714,14 +756,16 @@ impl PartDiagnoser {
         for &h in hyps {
             // A transition of the model that has the command and its sensor
             // edges in one scan.
+            // (An input's edge in the same scan comes along.)
+            let motion = changed & !self.inputs;
             if orders != 0
-                && sensors != 0
+                && motion & !orders != 0
                 && self.decoupled(h) & changed == 0
-                && !self.frozen(h)
+                && self.frozen_bits(h) & changed == 0
                 && let Some(s) = self.model_state(h.phys)
             {
                 for m in &self.moves[s] {
-                    if m.changed == changed && self.admits(h, m, readings) {
+                    if m.changed == motion && self.admits(h, m, readings) {
                         out.push(Hypothesis {
                             phys: h.phys ^ changed,
                             ..h
@@ -768,12 +812,24 @@ impl PartDiagnoser {
             return;
         }
         let dec = self.decoupled(h);
-        if !self.frozen(h) {
+        // An input's edge comes whatever the part's motion (a refill, a workpiece
+        // arriving); a fault of the input itself is still explained below.
+        let free = rest & self.inputs & !dec;
+        if free != 0 {
+            let next = Hypothesis {
+                phys: h.phys ^ free,
+                ..h
+            };
+            self.explain(next, rest & !free, after, readings, out);
+        }
+        let frozen = self.frozen_bits(h);
+        if rest & frozen == 0 {
             match self.model_state(h.phys) {
                 Some(s) => {
                     for m in &self.moves[s] {
                         let visible = m.changed & !dec;
                         if !m.command
+                            && m.changed & frozen == 0
                             && visible != 0
                             && visible & !rest == 0
                             && self.admits(h, m, readings)
@@ -898,15 +954,16 @@ impl PartDiagnoser {
                 timers[clock as usize].push(limit + 1);
                 all[clock as usize].push(limit + 1);
             }
-            if h.has(Hypothesis::UNTIMED) || self.frozen(h) {
+            if h.has(Hypothesis::UNTIMED) {
                 continue;
             }
             let Some(s) = self.model_state(h.phys) else {
                 continue;
             };
             let dec = self.decoupled(h);
+            let frozen = self.frozen_bits(h);
             for m in &self.moves[s] {
-                if !m.timed || !self.sees(h, m.clock) {
+                if !m.timed || !self.sees(h, m.clock) || m.changed & frozen != 0 {
                     continue;
                 }
                 let c = m.clock as usize;
@@ -923,7 +980,7 @@ impl PartDiagnoser {
             }
             for &k in &self.expected[s] {
                 let m = &self.moves[s][k];
-                if m.timed && self.sees(h, m.clock) {
+                if (m.timed || m.command) && self.sees(h, m.clock) && m.changed & frozen == 0 {
                     timers[m.clock as usize].push(m.hi + 1);
                     all[m.clock as usize].push(m.hi + 1);
                 }
@@ -937,10 +994,57 @@ impl PartDiagnoser {
     }
 }
 
+/// Bits of the part's input sensors: the plant file's `inputs` when it gives
+/// them, else those the model learned.
+fn input_mask(
+    plant: &Plant,
+    part: &Part,
+    model: &PartModel,
+    bit_of: &impl Fn(&str) -> Option<u8>,
+) -> u32 {
+    let names: Vec<&str> = match &part.inputs {
+        Some(ids) => ids.iter().map(|&s| plant.signals.name(s)).collect(),
+        None => model.inputs.iter().map(String::as_str).collect(),
+    };
+    names
+        .into_iter()
+        .filter_map(bit_of)
+        .fold(0, |m, b| m | 1 << b)
+}
+
+/// Per motion state, the indices in its moves of the events that must come.
+/// Several learned states may share a motion state (they differ in inputs): it
+/// has deadlines only if each of them has some, and then it is left by the last.
+fn expectations(model: &PartModel, motion_state: &[usize], moves: &[Vec<Move>]) -> Vec<Vec<usize>> {
+    let mut waits = vec![false; moves.len()];
+    let mut expected: Vec<Vec<usize>> = vec![Vec::new(); moves.len()];
+    for (i, s) in model.states.iter().enumerate() {
+        let m = motion_state[i];
+        let found: Vec<usize> = s
+            .expected
+            .iter()
+            .filter_map(|e| moves[m].iter().position(|mv| mv.id == e.transition))
+            .collect();
+        if s.stable || found.is_empty() {
+            waits[m] = true;
+        }
+        expected[m].extend(found);
+    }
+    for (m, e) in expected.iter_mut().enumerate() {
+        if waits[m] {
+            e.clear();
+        }
+        e.sort_unstable();
+        e.dedup();
+    }
+    expected
+}
+
 /// The mode a fault template gives in `part`, if it concerns the part.
 fn mode_kind(
     template: &FaultTemplate,
     part: &Part,
+    drives: u32,
     bit_of: &impl Fn(&str) -> Option<u8>,
 ) -> Option<ModeKind> {
     let element_is = |e: &str| part.element.as_deref() == Some(e);
@@ -969,13 +1073,15 @@ fn mode_kind(
             bit: bit_of(a)?,
             value: true,
         },
-        FaultTemplate::BlockedAt { element, at } if element_is(element) => {
-            ModeKind::BlockedAt { bit: bit_of(at)? }
-        }
+        FaultTemplate::BlockedAt { element, at } if element_is(element) => ModeKind::BlockedAt {
+            bit: bit_of(at)?,
+            drives,
+        },
         FaultTemplate::BlockedBetween { element, from, to } if element_is(element) => {
             ModeKind::BlockedBetween {
                 from: bit_of(from)?,
                 to: bit_of(to)?,
+                drives,
             }
         }
         _ => return None,

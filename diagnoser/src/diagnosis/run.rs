@@ -472,7 +472,10 @@ impl PlantDiagnoser {
             return;
         }
         let obs = run.obs;
-        let back = episode.cycled(obs, engine.part.model_state(obs).is_some());
+        let back = episode.cycled(
+            engine.part.motion(obs),
+            engine.part.model_state(obs).is_some(),
+        );
         let reason = back.then(|| {
             format!(
                 "back to normal: {} is in state {} again after a cycle that the model explains; unknown since {} {}",
@@ -502,7 +505,10 @@ impl PlantDiagnoser {
             left: false,
         });
         if episode.anchor.is_none() {
-            episode.cycled(run.obs, engine.part.model_state(run.obs).is_some());
+            episode.cycled(
+                engine.part.motion(run.obs),
+                engine.part.model_state(run.obs).is_some(),
+            );
         }
         run.episode = Some(episode);
         self.earliest = earliest(&self.runs);
