@@ -273,26 +273,27 @@ fn print_report(model: &Model) {
         if !part.inputs.is_empty() {
             out.push_str(&format!("  inputs: {}\n", part.inputs.join(", ")));
         }
-        let unapplied: Vec<&str> = part
-            .sensor_classes
-            .iter()
-            .filter_map(|c| {
-                c.split_once(": input:")
-                    .or_else(|| c.split_once(": partly an input:"))
-                    .map(|(name, _)| name)
-            })
-            .filter(|name| !part.inputs.iter().any(|i| i == name))
-            .collect();
-        if !unapplied.is_empty() {
-            out.push_str(&format!(
-                "  to let {} change in any state, write `inputs = [{}]` in the part, or learn with --learn-inputs\n",
-                unapplied.join(", "),
-                unapplied
-                    .iter()
-                    .map(|n| format!("\"{n}\""))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ));
+        for (class, how) in [
+            (
+                ": input:",
+                "write `inputs = [{}]` in the part, or learn with --learn-inputs",
+            ),
+            (": partly an input:", "write `inputs = [{}]` in the part"),
+        ] {
+            let names: Vec<&str> = part
+                .sensor_classes
+                .iter()
+                .filter_map(|c| c.split_once(class).map(|(name, _)| name))
+                .filter(|name| !part.inputs.iter().any(|i| i == name))
+                .collect();
+            if !names.is_empty() {
+                let quoted: Vec<String> = names.iter().map(|n| format!("\"{n}\"")).collect();
+                out.push_str(&format!(
+                    "  to let {} change in any state, {}\n",
+                    names.join(", "),
+                    how.replace("{}", &quoted.join(", "))
+                ));
+            }
         }
     }
     print!("{out}");
