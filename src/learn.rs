@@ -5,7 +5,7 @@ use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use diagnoser::model::Model;
+use diagnoser::model::{Model, SensorKind};
 use diagnoser::{Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::check::check;
@@ -268,23 +268,28 @@ fn print_report(model: &Model) {
             out.push_str(&format!("  untimed: {u}\n"));
         }
         for c in &part.sensor_classes {
-            out.push_str(&format!("  sensor {c}\n"));
+            let why = if c.why.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", c.why)
+            };
+            out.push_str(&format!("  sensor {}: {}{why}\n", c.sensor, c.class.name()));
         }
         if !part.inputs.is_empty() {
             out.push_str(&format!("  inputs: {}\n", part.inputs.join(", ")));
         }
         for (class, how) in [
             (
-                ": input:",
+                SensorKind::Input,
                 "write `inputs = [{}]` in the part, or learn with --learn-inputs",
             ),
-            (": partly an input:", "write `inputs = [{}]` in the part"),
+            (SensorKind::PartlyInput, "write `inputs = [{}]` in the part"),
         ] {
             let names: Vec<&str> = part
                 .sensor_classes
                 .iter()
-                .filter_map(|c| c.split_once(class).map(|(name, _)| name))
-                .filter(|name| !part.inputs.iter().any(|i| i == name))
+                .filter(|c| c.class == class && !part.inputs.contains(&c.sensor))
+                .map(|c| c.sensor.as_str())
                 .collect();
             if !names.is_empty() {
                 let quoted: Vec<String> = names.iter().map(|n| format!("\"{n}\"")).collect();

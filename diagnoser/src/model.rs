@@ -138,7 +138,47 @@ pub struct PartModel {
     /// How each sensor looks in the logs (driven by the part's orders, or an
     /// input), and why.
     #[serde(default)]
-    pub sensor_classes: Vec<String>,
+    pub sensor_classes: Vec<SensorClass>,
+}
+
+/// How a sensor of a part looks in the learning logs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SensorClass {
+    /// Sensor name.
+    pub sensor: String,
+    /// What its edges follow.
+    pub class: SensorKind,
+    /// The counts behind it, in words.
+    pub why: String,
+}
+
+/// Whether a sensor's edges follow the part's orders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorKind {
+    /// Its edges follow clocks of the part.
+    Driven,
+    /// None of its edges does: an operator, a workpiece or another machine.
+    Input,
+    /// One of its edges does, the other not (a place sensor).
+    PartlyInput,
+    /// An input because the plant file's `inputs` says so.
+    DeclaredInput,
+    /// Not an input because the plant file's `inputs` leaves it out.
+    DeclaredDriven,
+}
+
+impl SensorKind {
+    /// In words, as `learn` reports it.
+    pub fn name(self) -> &'static str {
+        match self {
+            SensorKind::Driven => "driven",
+            SensorKind::Input => "input",
+            SensorKind::PartlyInput => "partly an input",
+            SensorKind::DeclaredInput => "input, as the plant file's `inputs` says",
+            SensorKind::DeclaredDriven => "driven, as the plant file's `inputs` says",
+        }
+    }
 }
 
 /// A state: one observed vector of the part's signals.

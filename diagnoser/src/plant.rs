@@ -142,13 +142,6 @@ pub struct Part {
     pub inputs: Option<Vec<SignalId>>,
 }
 
-impl Part {
-    /// Whether `sensor` is one the part's element drives.
-    pub fn drives(&self, sensor: SignalId) -> bool {
-        self.element.is_some() && self.drives.contains(&sensor)
-    }
-}
-
 /// A fault label and what it means.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FaultDef {

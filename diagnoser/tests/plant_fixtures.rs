@@ -156,11 +156,9 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
 
 #[test]
 fn an_element_blocks_only_the_sensors_it_drives() {
-    let plant = parse(
-        &Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("tests/fixtures/plants/good_drives_inputs.toml"),
-    )
-    .expect("parses");
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_drives_inputs.toml");
+    let plant = parse(&path).expect("parses");
     let part = &plant.parts[0];
     let names = |ids: &[diagnoser::SignalId]| -> Vec<String> {
         ids.iter()
@@ -186,11 +184,9 @@ fn an_element_blocks_only_the_sensors_it_drives() {
     );
 
     // Without `drives`, the element drives every sensor but the inputs.
-    let text = fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_drives_inputs.toml"),
-    )
-    .expect("reads")
-    .replace("drives = [\"B1\", \"B2\"]\n", "");
+    let text = fs::read_to_string(&path)
+        .expect("reads")
+        .replace("drives = [\"B1\", \"B2\"]\n", "");
     let plant = Plant::parse(&text, Path::new("x.toml")).expect("parses");
     assert_eq!(names(&plant.parts[0].drives), ["B1", "B2", "B3"]);
 }

@@ -10,7 +10,8 @@ use std::hash::{BuildHasherDefault, Hasher};
 
 use diagnoser::model::{
     ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, PartModel,
-    Provenance, SensorEstimate, SensorSchedule, StateModel, TransitionModel,
+    Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule, StateModel,
+    TransitionModel,
 };
 use diagnoser::{Located, Plant, SignalKind, Time};
 
@@ -666,11 +667,7 @@ impl PartLearner {
                 ));
             }
             let guard = hist.guard(options, widening, scale);
-            let spread = guard.q99 - guard.q01;
-            let timed = sensed
-                && hist.n >= options.min_samples
-                && (spread <= options.timed_spread as f64 / scale
-                    || spread <= options.timed_relative * guard.q50);
+            let timed = sensed && hist.n >= options.min_samples && hist.tight(options);
             if sensed && hist.n > 0 && hist.n < options.min_samples {
                 untimed.push(format!(
                     "{event}: only {} occurrence(s), too few to time",
@@ -707,20 +704,26 @@ impl PartLearner {
             Some(names) => {
                 let classes = self.names[self.n_act..]
                     .iter()
-                    .map(|n| {
-                        let what = if names.contains(n) { "input" } else { "driven" };
-                        format!("{n}: {what}, as the plant file's `inputs` says")
+                    .map(|n| SensorClass {
+                        sensor: n.clone(),
+                        class: if names.contains(n) {
+                            SensorKind::DeclaredInput
+                        } else {
+                            SensorKind::DeclaredDriven
+                        },
+                        why: String::new(),
                     })
                     .collect();
                 (names, classes)
             }
             None => {
-                let (inputs, _partial, classes) = self.classify_sensors(&own_timing, options);
-                if options.learn_inputs {
-                    (inputs, classes)
-                } else {
-                    (Vec::new(), classes)
-                }
+                let classes = self.classify_sensors(&own_timing, options);
+                let inputs = classes
+                    .iter()
+                    .filter(|c| options.learn_inputs && c.class == SensorKind::Input)
+                    .map(|c| c.sensor.clone())
+                    .collect();
+                (inputs, classes)
             }
         };
 
@@ -827,16 +830,10 @@ impl PartLearner {
     /// else it comes from outside the part's motion: an operator, a workpiece,
     /// another machine. A sensor with no caused edge is an input; one with both
     /// kinds (a place sensor: a workpiece arrives when it comes, and leaves when
-    /// the part takes it) is partly one. Returns the inputs, the partial
-    /// inputs, and per sensor the reason.
-    fn classify_sensors(
-        &self,
-        own_timing: &[bool],
-        options: &LearnOptions,
-    ) -> (Vec<String>, Vec<String>, Vec<String>) {
-        let (mut inputs, mut partial, mut classes) = (Vec::new(), Vec::new(), Vec::new());
+    /// the part takes it) is partly one.
+    fn classify_sensors(&self, own_timing: &[bool], options: &LearnOptions) -> Vec<SensorClass> {
+        let mut classes = Vec::new();
         for bit in self.n_act..self.names.len() {
-            let name = &self.names[bit];
             let (mut outside, mut caused) = (Vec::new(), Vec::new());
             for rising in [true, false] {
                 let (mut seen, mut timed) = (0u64, 0u64);
@@ -856,30 +853,35 @@ impl PartLearner {
                     caused.push(text);
                 }
             }
-            let class = match (outside.is_empty(), caused.is_empty()) {
-                (false, true) => {
-                    inputs.push(name.clone());
+            let (class, why) = match (outside.is_empty(), caused.is_empty()) {
+                (false, true) => (
+                    SensorKind::Input,
                     format!(
-                        "input: {} follow a clock of the part: an operator, a workpiece or another machine moves it",
+                        "{} follow a clock of the part: an operator, a workpiece or another machine moves it",
                         outside.join(", ")
-                    )
-                }
-                (false, false) => {
-                    partial.push(name.clone());
+                    ),
+                ),
+                (false, false) => (
+                    SensorKind::PartlyInput,
                     format!(
-                        "partly an input: {} follow a clock of the part, but {} do",
+                        "{} follow a clock of the part, but {} do",
                         outside.join(", "),
                         caused.join(", ")
-                    )
-                }
-                (true, true) => "driven: it never changed".to_string(),
-                (true, false) => {
-                    format!("driven: {} follow a clock of the part", caused.join(", "))
-                }
+                    ),
+                ),
+                (true, true) => (SensorKind::Driven, "it never changed".to_string()),
+                (true, false) => (
+                    SensorKind::Driven,
+                    format!("{} follow a clock of the part", caused.join(", ")),
+                ),
             };
-            classes.push(format!("{name}: {class}"));
+            classes.push(SensorClass {
+                sensor: self.names[bit].clone(),
+                class,
+                why,
+            });
         }
-        (inputs, partial, classes)
+        classes
     }
 
     fn estimates(

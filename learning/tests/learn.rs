@@ -240,3 +240,78 @@ fn guards_widen_by_the_drift_between_logs() {
     // suggested: a narrower guard.
     close(stroke_guard(&[500, 510, 520], 3.0), 465.36, 554.64);
 }
+
+#[test]
+fn a_sensor_no_order_moves_is_classified_an_input() {
+    use diagnoser::model::SensorKind;
+    let plant = diagnoser::Plant::parse(
+        "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
+         B = { kind = \"sensor\" }\nR = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\n\
+         actuators = [\"Y\"]\nsensors = [\"B\", \"R\"]\n",
+        std::path::Path::new("c.toml"),
+    )
+    .expect("plant");
+    let ids = |n: &str| plant.signals.id(n).expect("signal");
+    let (y, b, r) = (ids("Y"), ids("B"), ids("R"));
+    let mut events = Vec::new();
+    for k in 0..60i64 {
+        let t = 1000 + k * 4000;
+        // R (the next machine's "ready") toggles at times the cylinder does not set.
+        let ready = t + (k * k * 137) % 3900;
+        for (at, signal, value) in [
+            (t, y, true),
+            (t + 500, b, true),
+            (t + 2000, y, false),
+            (t + 2500, b, false),
+            (ready, r, k % 2 == 0),
+        ] {
+            events.push(diagnoser::Event {
+                t: at * MS,
+                signal,
+                value,
+            });
+        }
+    }
+    events.sort_by_key(|e| e.t);
+    let learn = |learn_inputs: bool| {
+        let options = LearnOptions {
+            learn_inputs,
+            ..LearnOptions::default()
+        };
+        let mut learner = Learner::new(&plant, options).expect("learner");
+        let log = LogStream {
+            path: PathBuf::from("run"),
+            format: LogFormat::EventsCsv,
+            time: TimeFormat::Numeric(TimeUnit::Ms),
+            start: 0,
+            initial: vec![false; 3],
+            batches: Box::new(std::iter::once(Ok(events.clone()))),
+            end: Default::default(),
+        };
+        learner.learn_log(log, |_| {}).expect("learns");
+        learner.finish()
+    };
+    let model = learn(false);
+    let cyl = part(&model, "cyl");
+    let class = |s: &str| {
+        cyl.sensor_classes
+            .iter()
+            .find(|c| c.sensor == s)
+            .map(|c| c.class)
+    };
+    assert_eq!(
+        class("B"),
+        Some(SensorKind::Driven),
+        "{:?}",
+        cyl.sensor_classes
+    );
+    assert_eq!(
+        class("R"),
+        Some(SensorKind::Input),
+        "{:?}",
+        cyl.sensor_classes
+    );
+    // Reported, not applied, unless asked.
+    assert!(cyl.inputs.is_empty());
+    assert_eq!(part(&learn(true), "cyl").inputs, ["R"]);
+}

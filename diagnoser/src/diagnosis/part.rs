@@ -417,11 +417,6 @@ impl PartDiagnoser {
         &self.vectors
     }
 
-    /// Bits of the part's input sensors.
-    pub fn input_mask(&self) -> u32 {
-        self.inputs
-    }
-
     /// A state vector's motion: its bits but the inputs'.
     pub fn motion(&self, vector: u32) -> u32 {
         vector & !self.inputs
@@ -753,11 +748,12 @@ impl PartDiagnoser {
         let after = obs ^ changed;
         let mut out = Vec::new();
         let mut sensed = Vec::new();
+        // An input's edge in the same scan as a command and its sensor edges
+        // comes along with the model's transition.
+        let motion = self.motion(changed);
         for &h in hyps {
             // A transition of the model that has the command and its sensor
             // edges in one scan.
-            // (An input's edge in the same scan comes along.)
-            let motion = changed & !self.inputs;
             if orders != 0
                 && motion & !orders != 0
                 && self.decoupled(h) & changed == 0
