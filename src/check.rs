@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use diagnoser::diagnosis::compile::{Commands, Compiled, Size};
-use diagnoser::diagnosis::diagnosability::{FaultDiagnosability, check};
+use diagnoser::diagnosis::diagnosability::{FaultDiagnosability, Waiting, check};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::faudes;
 use diagnoser::model::Model;
@@ -266,9 +266,14 @@ fn write_simplified(out: &mut impl Write, rows: &[Simplified]) -> std::io::Resul
 
 fn write_verdict(out: &mut impl Write, v: &FaultDiagnosability) -> std::io::Result<()> {
     let state = match (v.detectable, v.isolable) {
-        (true, true) => format!(
-            "diagnosable: detected and isolated within {} observed scan(s) of showing",
+        (true, true) if v.isolable_when_waiting => format!(
+            "diagnosable: detected and isolated within {} observed scan(s) of showing, also if the control waits for ever",
             v.bound_scans.unwrap_or(0)
+        ),
+        (true, true) => format!(
+            "diagnosable while the plant runs: detected and isolated within {} observed scan(s) of showing; if the control waits for ever, not isolable from {}",
+            v.bound_scans.unwrap_or(0),
+            v.confused_when_waiting.join(", ")
         ),
         (true, false) => format!(
             "detectable, not isolable from {}",
@@ -289,6 +294,9 @@ fn write_verdict(out: &mut impl Write, v: &FaultDiagnosability) -> std::io::Resu
         }
     };
     writeln!(out, "  {} {}: {state}", v.label, v.template)?;
+    if let Some(w) = &v.waiting {
+        writeln!(out, "    {}", waiting_sentence(&v.label, w))?;
+    }
     if let Some(c) = &v.counterexample {
         let other = if c.other == "N" {
             "a normal run".to_string()
@@ -315,6 +323,26 @@ fn write_verdict(out: &mut impl Write, v: &FaultDiagnosability) -> std::io::Resu
         )?;
     }
     Ok(())
+}
+
+/// Why a fault is isolable only while the plant runs, in one sentence.
+fn waiting_sentence(label: &str, w: &Waiting) -> String {
+    let until = match &w.until {
+        Some(o) => format!("until {o}"),
+        None => "for ever (no learned observation tells them apart)".to_string(),
+    };
+    let control = if w.control_waits_for.is_empty() {
+        "the learned runs never left that state".to_string()
+    } else {
+        format!(
+            "the learned control waits for {} first",
+            w.control_waits_for.join(" or ")
+        )
+    };
+    format!(
+        "{label} and {} look the same once the plant stops at {} {until}; {control}",
+        w.other, w.state
+    )
 }
 
 fn faudes_check(gen_path: &PathBuf, map: &PathBuf, json: bool) -> Result<(), Failure> {

@@ -107,10 +107,10 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         for path in &args.logs {
             streams.push(open(path, &plant, &ingest).map_err(bad)?);
         }
-        let parts =
+        let suggestion =
             suggest_parts(&plant.signals, streams, &SuggestOptions::default()).map_err(bad)?;
         bar.finish_and_clear();
-        print!("{}", to_toml(&parts, &plant.signals));
+        print!("{}", to_toml(&suggestion, &plant.signals));
         return Ok(());
     }
 

@@ -229,6 +229,23 @@ fn check_reports_diagnosability_sizes_and_renders_with_graphviz() {
     for f in ["F1", "F2", "F3", "F4", "F5", "F6", "F11", "F12"] {
         assert!(verdict(f).contains(": diagnosable"), "{}", verdict(f));
     }
+    // A stuck position sensor and a plate blocked on its way there look the
+    // same once the control waits for that sensor.
+    for f in ["F1", "F3", "F11", "F12"] {
+        assert!(
+            verdict(f).contains("while the plant runs"),
+            "{}",
+            verdict(f)
+        );
+    }
+    assert!(
+        text.contains("F3 and F11 look the same once the plant stops at A4=1 C4=0 C5=0"),
+        "{text}"
+    );
+    assert!(
+        verdict("F2").contains("also if the control waits"),
+        "{text}"
+    );
     // An unexpected edge can hide inside the window of a normal one.
     assert!(
         verdict("F7").contains("not detectable"),

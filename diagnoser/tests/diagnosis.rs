@@ -99,6 +99,51 @@ fn compiled_turntable_diagnoser_and_its_diagnosability() {
     assert!(!c.observed.is_empty());
     assert_eq!(c.faulty.len(), c.observed.len());
     assert_eq!(c.other_run.len(), c.observed.len());
+    for v in &verdicts {
+        // Isolable when waiting is isolable and more; a reason goes with each
+        // fault that is isolable only while the plant runs.
+        assert!(!v.isolable_when_waiting || v.isolable, "{v:?}");
+        assert_eq!(
+            v.isolable && !v.isolable_when_waiting,
+            v.waiting.is_some(),
+            "{v:?}"
+        );
+        assert_eq!(v.waiting.is_some(), !v.confused_when_waiting.is_empty());
+    }
+}
+
+#[test]
+fn a_control_that_waits_for_a_withheld_sensor_hides_what_a_running_plant_shows() {
+    let (plant, model) = setup();
+    let d = PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
+    let mut engine = d
+        .engines()
+        .iter()
+        .find(|e| e.part.name == "turntable")
+        .expect("turntable")
+        .clone();
+    let compiled = Compiled::explore(&mut engine, 2);
+    let verdicts = check(&mut engine, &compiled, TimeUnit::Ms);
+    let of = |l: &str| verdicts.iter().find(|v| v.label == l).expect("verdict");
+    // A sensor stuck at its resting value and a plate blocked on the way to it
+    // look the same once the control waits for that sensor: the plate's return
+    // that would tell them apart never comes.
+    for (stuck, blocked, sensor) in [("F1", "F12", "C4"), ("F3", "F11", "C5")] {
+        for (f, g) in [(stuck, blocked), (blocked, stuck)] {
+            let v = of(f);
+            assert!(v.isolable && !v.isolable_when_waiting, "{v:?}");
+            assert_eq!(v.confused_when_waiting, [g], "{v:?}");
+            let w = v.waiting.as_ref().expect("where the control waits");
+            assert_eq!(w.other, g);
+            assert_eq!(w.control_waits_for, [format!("RE({sensor})")], "{w:?}");
+        }
+    }
+    // A sensor stuck at the value it shows in transit, or a plate blocked at a
+    // position, breaks a deadline whatever the control does.
+    for f in ["F2", "F4", "F5", "F6"] {
+        let v = of(f);
+        assert!(v.isolable_when_waiting && v.waiting.is_none(), "{v:?}");
+    }
 }
 
 fn verdict(part: &str, labels: &[&str]) -> Verdict {

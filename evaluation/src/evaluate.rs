@@ -94,8 +94,11 @@ pub struct FaultOutcome {
     pub judgement: Judgement,
     /// What `check` says: detectable.
     pub check_detectable: Option<bool>,
-    /// What `check` says: isolable.
+    /// What `check` says: isolable under the learned control, also if it
+    /// waits for ever.
     pub check_isolable: Option<bool>,
+    /// What `check` says: isolable while the plant keeps running.
+    pub check_isolable_running: Option<bool>,
 }
 
 /// Seconds spent on each step of a plant.
@@ -222,12 +225,12 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
     out.seconds.normal = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let mut verdicts: HashMap<String, (bool, bool)> = HashMap::new();
+    let mut verdicts: HashMap<String, (bool, bool, bool)> = HashMap::new();
     for engine in diagnoser.engines() {
         let mut engine = engine.clone();
         let compiled = Compiled::explore(&mut engine, 2);
         for v in check(&mut engine, &compiled, model.time_unit) {
-            verdicts.insert(v.label, (v.detectable, v.isolable));
+            verdicts.insert(v.label, (v.detectable, v.isolable_when_waiting, v.isolable));
         }
     }
     out.seconds.check = clock.elapsed().as_secs_f64();
@@ -258,6 +261,7 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
             judgement,
             check_detectable: check.map(|c| c.0),
             check_isolable: check.map(|c| c.1),
+            check_isolable_running: check.map(|c| c.2),
         });
     })
     .map_err(|e| e.to_string())?;

@@ -33,10 +33,16 @@ pub struct Totals {
     pub judged: usize,
     /// ...and every such verdict kept the true label.
     pub sound: usize,
-    /// Runs where the fault showed and `check` says it is isolable.
+    /// Runs where the fault showed and `check` says it is isolable, also if the
+    /// control waits for ever.
     pub isolable: usize,
     /// ...and the last verdict is the true fault alone.
     pub isolable_isolated: usize,
+    /// Runs where the fault showed and `check` says it is isolable while the
+    /// plant keeps running.
+    pub isolable_running: usize,
+    /// ...and the last verdict is the true fault alone.
+    pub isolable_running_isolated: usize,
     /// Runs where the fault showed and the last verdict is the true fault alone.
     pub isolated: usize,
     /// Detection delays (s) from the onset, of detected runs that showed.
@@ -83,6 +89,10 @@ impl Totals {
             self.isolable += 1;
             self.isolable_isolated += usize::from(j.isolated);
         }
+        if r.check_isolable_running == Some(true) {
+            self.isolable_running += 1;
+            self.isolable_running_isolated += usize::from(j.isolated);
+        }
     }
 }
 
@@ -127,8 +137,8 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
     }
     rows.push(("all".to_string(), all));
     let mut out = String::from(
-        "| plants | parts | faulty runs | false alarms / 100 h (fault-free h) | preempted (part alarmed before onset) | sound | detected (of showed) | isolated (of `check` isolable) | isolated (of showed) | delay median | delay p95 |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| plants | parts | faulty runs | false alarms / 100 h (fault-free h) | preempted (part alarmed before onset) | sound | detected (of showed) | isolated (of `check` isolable) | isolated (of isolable while running) | isolated (of showed) | delay median | delay p95 |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (name, t) in rows {
         let rate = if t.normal_hours > 0.0 {
@@ -148,7 +158,7 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
         };
         let _ = writeln!(
             out,
-            "| {name}: {}{errors} | {} | {} | {rate} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {name}: {}{errors} | {} | {} | {rate} | {} | {} | {} | {} | {} | {} | {} | {} |",
             t.plants,
             t.parts,
             t.runs,
@@ -156,6 +166,7 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
             percent(t.sound, t.judged),
             percent(t.detected, t.showed),
             percent(t.isolable_isolated, t.isolable),
+            percent(t.isolable_running_isolated, t.isolable_running),
             percent(t.isolated, t.showed),
             seconds(quantile(&t.delays, 0.5)),
             seconds(quantile(&t.delays, 0.95)),
@@ -201,13 +212,14 @@ impl Disagreement {
     }
 }
 
-/// `check` says isolable; the replay did not end on the fault alone.
+/// `check` says isolable, also if the control waits; the replay did not end on
+/// the fault alone.
 pub const ISOLABLE: &str = "check: isolable; replay: not isolated";
 /// `check` says detectable; the fault's part never left normal.
 pub const DETECTABLE: &str = "check: detectable; replay: not detected";
 /// `check` says not detectable; the replay detected it, soundly.
 pub const NOT_DETECTABLE: &str = "check: not detectable; replay: detected";
-/// `check` says not isolable; the replay isolated it.
+/// `check` says not isolable, even while the plant runs; the replay isolated it.
 pub const NOT_ISOLABLE: &str = "check: not isolable; replay: isolated";
 
 /// The disagreements counted per kind and, within a kind, per template.
@@ -252,7 +264,11 @@ pub fn disagreements(outcomes: &[PlantOutcome]) -> Vec<Disagreement> {
             .filter(|r| r.showed_ms.is_some() && !r.judgement.preempted)
         {
             let j = &r.judgement;
-            let (Some(detectable), Some(isolable)) = (r.check_detectable, r.check_isolable) else {
+            let (Some(detectable), Some(isolable), Some(running)) = (
+                r.check_detectable,
+                r.check_isolable,
+                r.check_isolable_running,
+            ) else {
                 continue;
             };
             let ended = format!("ended {} [{}]", j.final_verdict, j.final_labels.join(", "));
@@ -268,7 +284,7 @@ pub fn disagreements(outcomes: &[PlantOutcome]) -> Vec<Disagreement> {
                     NOT_DETECTABLE,
                     format!("check: not detectable; replay detected it and {ended}"),
                 )
-            } else if !isolable && j.isolated {
+            } else if !running && j.isolated {
                 (
                     NOT_ISOLABLE,
                     "check: not isolable; replay isolated it".to_string(),

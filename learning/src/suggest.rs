@@ -43,6 +43,21 @@
 //! last order before an edge is its most direct cause. Each actuator becomes
 //! one part, with the sensors it won, possibly none.
 //!
+//! # Inputs
+//!
+//! A sensor that follows no actuator sees what the part does not move: a
+//! workpiece arriving, an operator's refill, the next machine. The control
+//! reacts to such a sensor instead, so it is read the other way round: every
+//! edge of the sensor opens a window that closes at its next edge, and the
+//! first edge of each actuator in that window (in the same scan included: the
+//! PLC writes its outputs after reading its inputs) is a *reaction* to it, if
+//! no later than [`SuggestOptions::max_delay`]. The sensor becomes an input
+//! (the plant file's `inputs`) of the part whose actuator reacts to the largest
+//! share of its edges in one direction, if that share is at least
+//! [`SuggestOptions::follower_share`]; the earlier actuator on a tie. A sensor
+//! that neither follows nor leads any actuator stays out of every part, and the
+//! suggestion says, per sensor, how close it came.
+//!
 //! # Memory
 //!
 //! Logs are streamed batch by batch. What is kept is, per actuator, its last
@@ -105,6 +120,42 @@ pub struct SuggestedPart {
     pub sensors: Vec<SignalId>,
     /// Why each sensor is here, in the order of `sensors`.
     pub evidence: Vec<SensorEvidence>,
+    /// Sensors the actuators react to (the part's inputs), in signal order,
+    /// with why.
+    pub inputs: Vec<InputEvidence>,
+    /// Sensors whose edges follow the actuator in one direction only (the
+    /// other direction is free: an operator, a workpiece), in signal order.
+    pub half: Vec<HalfFollower>,
+}
+
+/// How an actuator reacts to a sensor's edges.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputEvidence {
+    /// The sensor.
+    pub sensor: SignalId,
+    /// The actuator that reacts to it most.
+    pub actuator: SignalId,
+    /// The sensor's falling and rising edges, in all logs.
+    pub edges: [u64; 2],
+    /// How many of them an edge of the actuator follows, indexed like `edges`.
+    pub reactions: [u64; 2],
+    /// The reactions' delays in the direction with the larger share: median,
+    /// 5th and 95th percentiles.
+    pub delays: Option<DelayStats>,
+}
+
+impl InputEvidence {
+    /// Share of the sensor's rising (`true`) or falling edges an edge of the
+    /// actuator follows (0 when it has none in that direction).
+    pub fn share(&self, rising: bool) -> f64 {
+        let i = usize::from(rising);
+        self.reactions[i] as f64 / self.edges[i].max(1) as f64
+    }
+
+    /// The larger of the two shares.
+    pub fn best_share(&self) -> f64 {
+        self.share(true).max(self.share(false))
+    }
 }
 
 /// Why a sensor was put with an actuator.
@@ -165,9 +216,32 @@ pub struct DelayStats {
     pub q95: Time,
 }
 
+/// The suggested parts, and the sensors left out of all of them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Suggestion {
+    /// One part per actuator.
+    pub parts: Vec<SuggestedPart>,
+    /// Per sensor in no part that follows no actuator in either direction,
+    /// the actuator that reacts to it most, and how often (`reactions` 0 when
+    /// none ever does).
+    pub unplaced: Vec<InputEvidence>,
+}
+
+/// A sensor whose edges follow an actuator's in one direction at a time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HalfFollower {
+    /// The sensor.
+    pub sensor: SignalId,
+    /// The actuator its falling edges follow, if any.
+    pub falling: Option<SignalId>,
+    /// The actuator its rising edges follow, if any.
+    pub rising: Option<SignalId>,
+}
+
 /// Suggests parts from `logs`, read one after the other (edges never pair
 /// across logs). Every actuator of `signals` gets one part, with the sensors
-/// that follow it best; sensors that follow no actuator closely are in no part.
+/// that follow it best and the sensors it reacts to (its inputs); sensors that
+/// do neither closely are in no part.
 ///
 /// Fails on the first error of a log, or if a log does not fit `signals` (wrong
 /// number of initial values, unknown signal ids, events out of time order).
@@ -175,17 +249,19 @@ pub fn suggest_parts(
     signals: &SignalTable,
     logs: Vec<LogStream>,
     options: &SuggestOptions,
-) -> Result<Vec<SuggestedPart>, Located> {
+) -> Result<Suggestion, Located> {
     let mut stats = Stats::new(signals, options);
     for log in logs {
         stats.read(log)?;
     }
-    Ok(stats.parts(signals, options))
+    Ok(stats.suggestion(signals, options))
 }
 
-/// Prints parts as `[[parts]]` blocks of a plant file, with the evidence as
-/// comments, and the sensors left out as a final comment.
-pub fn to_toml(parts: &[SuggestedPart], signals: &SignalTable) -> String {
+/// Prints the parts as `[[parts]]` blocks of a plant file, with the evidence as
+/// comments, and the sensors left out, with how close each came, as a final
+/// comment.
+pub fn to_toml(suggestion: &Suggestion, signals: &SignalTable) -> String {
+    let (parts, unplaced) = (&suggestion.parts, &suggestion.unplaced);
     let mut out = String::from(
         "# Parts suggested by gardefou from logs alone: review them before use.\n\
          # A sensor is put with the actuator whose edges it follows most consistently.\n",
@@ -203,7 +279,47 @@ pub fn to_toml(parts: &[SuggestedPart], signals: &SignalTable) -> String {
         let _ = writeln!(out, "\n[[parts]]");
         let _ = writeln!(out, "name = {}", toml_string(&part.name));
         let _ = writeln!(out, "actuators = [{}]", names(&part.actuators));
-        let _ = writeln!(out, "sensors = [{}]", names(&part.sensors));
+        let inputs: Vec<SignalId> = part.inputs.iter().map(|e| e.sensor).collect();
+        let mut sensors = part.sensors.clone();
+        sensors.extend(&inputs);
+        sensors.extend(part.half.iter().map(|h| h.sensor));
+        sensors.sort_unstable();
+        let _ = writeln!(out, "sensors = [{}]", names(&sensors));
+        if !inputs.is_empty() {
+            let _ = writeln!(out, "inputs = [{}]", names(&inputs));
+        }
+        for h in &part.half {
+            let name = signals.name(h.sensor);
+            let _ = match (h.rising, h.falling) {
+                (Some(r), Some(f)) => writeln!(
+                    out,
+                    "# {name}: its rising edges follow {} and its falling edges {}: one part holds both orders",
+                    signals.name(r),
+                    signals.name(f)
+                ),
+                (Some(a), None) | (None, Some(a)) => {
+                    let (moved, free) = if h.rising.is_some() {
+                        ("rising", "falling")
+                    } else {
+                        ("falling", "rising")
+                    };
+                    writeln!(
+                        out,
+                        "# {name}: its {moved} edges follow {}, its {free} edges no order (an input that way): learning tells which edges the part causes",
+                        signals.name(a)
+                    )
+                }
+                (None, None) => Ok(()),
+            };
+        }
+        for e in &part.inputs {
+            let _ = writeln!(
+                out,
+                "# {} (input): follows no actuator; {}: the control reacts to it",
+                signals.name(e.sensor),
+                reactions(e, signals)
+            );
+        }
         for e in &part.evidence {
             let (s, a) = (signals.name(e.sensor), signals.name(e.actuator));
             let _ = writeln!(
@@ -232,7 +348,13 @@ pub fn to_toml(parts: &[SuggestedPart], signals: &SignalTable) -> String {
     }
     let placed: Vec<SignalId> = parts
         .iter()
-        .flat_map(|p| p.sensors.iter().copied())
+        .flat_map(|p| {
+            p.sensors
+                .iter()
+                .copied()
+                .chain(p.inputs.iter().map(|e| e.sensor))
+                .chain(p.half.iter().map(|h| h.sensor))
+        })
         .collect();
     let left: Vec<&str> = signals
         .iter()
@@ -242,9 +364,92 @@ pub fn to_toml(parts: &[SuggestedPart], signals: &SignalTable) -> String {
     if !left.is_empty() {
         let _ = writeln!(
             out,
-            "\n# Sensors that follow no actuator closely enough: {}",
+            "\n# Sensors in no part (they neither follow an actuator nor lead one closely enough): {}",
             left.join(", ")
         );
+        for e in unplaced {
+            let _ = writeln!(
+                out,
+                "#   {}: at best {}",
+                signals.name(e.sensor),
+                reactions(e, signals)
+            );
+        }
+    }
+    out
+}
+
+/// `a/b rising and c/d falling edges of S are followed by an edge of A`.
+fn reactions(e: &InputEvidence, signals: &SignalTable) -> String {
+    let mut text = format!(
+        "{}/{} rising and {}/{} falling edges of it are followed by an edge of {}",
+        e.reactions[1],
+        e.edges[1],
+        e.reactions[0],
+        e.edges[0],
+        signals.name(e.actuator)
+    );
+    if let Some(d) = e.delays.filter(|d| d.q95 == 0) {
+        let side = if d.sensor_rising { "rising" } else { "falling" };
+        let _ = write!(text, " (the {side} ones in the same scan)");
+    } else if let Some(d) = &e.delays {
+        let _ = write!(
+            text,
+            " ({} edges: median {}, 90 % within [{}, {}])",
+            if d.sensor_rising { "rising" } else { "falling" },
+            approx_ms(d.q50),
+            approx_ms(d.q05),
+            approx_ms(d.q95)
+        );
+    }
+    text
+}
+
+/// Merges the parts of each pair of actuators in `merges` (and transitively),
+/// in the order of their first actuator, named after all their actuators.
+fn merged(parts: Vec<SuggestedPart>, merges: &[(usize, usize)]) -> Vec<SuggestedPart> {
+    let mut root: Vec<usize> = (0..parts.len()).collect();
+    fn find(root: &mut [usize], mut x: usize) -> usize {
+        while root[x] != x {
+            root[x] = root[root[x]];
+            x = root[x];
+        }
+        x
+    }
+    for &(a, b) in merges {
+        let (ra, rb) = (find(&mut root, a), find(&mut root, b));
+        root[ra.max(rb)] = ra.min(rb);
+    }
+    let mut out: Vec<SuggestedPart> = Vec::new();
+    let mut at: Vec<Option<usize>> = vec![None; parts.len()];
+    for (i, part) in parts.into_iter().enumerate() {
+        let r = find(&mut root, i);
+        match at[r] {
+            None => {
+                at[r] = Some(out.len());
+                out.push(part);
+            }
+            Some(k) => {
+                let into = &mut out[k];
+                into.name.push_str(part.name.trim_start_matches("part"));
+                into.actuators.extend(part.actuators);
+                into.sensors.extend(part.sensors);
+                into.evidence.extend(part.evidence);
+                into.inputs.extend(part.inputs);
+                into.half.extend(part.half);
+            }
+        }
+    }
+    for part in &mut out {
+        let mut placed: Vec<(SignalId, SensorEvidence)> = part
+            .sensors
+            .drain(..)
+            .zip(part.evidence.drain(..))
+            .collect();
+        placed.sort_by_key(|(s, _)| *s);
+        (part.sensors, part.evidence) = placed.into_iter().unzip();
+        part.inputs.sort_by_key(|e| e.sensor);
+        part.half.sort_by_key(|h| h.sensor);
     }
     out
 }
@@ -314,10 +519,11 @@ impl Bins {
         }
     }
 
-    /// The middle of bin `b` (geometric, as the bins are).
+    /// The middle of bin `b` (geometric, as the bins are); 0 for bin 0, which
+    /// holds the delays too short to tell apart, chiefly the same scan's.
     fn value(&self, b: usize) -> Time {
         if b == 0 {
-            self.low.round() as Time
+            0
         } else {
             (self.low * ((b as f64 - 0.5) * self.ln_ratio).exp()).round() as Time
         }
@@ -355,6 +561,11 @@ struct Stats {
     /// Per (actuator, sensor, actuator direction, sensor direction): delays.
     histograms: Vec<Option<Box<[u32]>>>,
     counts: Vec<u64>,
+    /// Per (actuator, sensor): the sensor's edges an edge of the actuator
+    /// reacts to, by sensor direction.
+    reactions: Vec<[u64; 2]>,
+    /// Per (actuator, sensor, sensor direction): delays of the reactions.
+    reaction_delays: Vec<Option<Box<[u32]>>>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -370,6 +581,10 @@ struct LogState {
     last: Vec<Option<(Time, bool)>>,
     /// Per (actuator, sensor): whether the actuator's window has had its follower.
     matched: Vec<bool>,
+    /// Per sensor: time and direction of its last edge.
+    last_sensor: Vec<Option<(Time, bool)>>,
+    /// Per (actuator, sensor): whether the sensor's window has had its reaction.
+    reacted: Vec<bool>,
     /// The events of the scan being gathered.
     scan: Vec<Event>,
 }
@@ -394,6 +609,8 @@ impl Stats {
             followers: vec![[0; 2]; pairs],
             histograms: vec![None; pairs * 4],
             counts: vec![0; pairs * 4],
+            reactions: vec![[0; 2]; pairs],
+            reaction_delays: vec![None; pairs * 2],
             actuators,
             sensors,
             role,
@@ -417,6 +634,8 @@ impl Stats {
             values: log.initial.clone(),
             last: vec![None; self.actuators.len()],
             matched: vec![false; self.actuators.len() * self.sensors.len()],
+            last_sensor: vec![None; self.sensors.len()],
+            reacted: vec![false; self.actuators.len() * self.sensors.len()],
             scan: Vec::new(),
         };
         let mut previous = log.start;
@@ -469,15 +688,42 @@ impl Stats {
                 self.actuator_edges[a] += 1;
                 let row = self.pair(a, 0);
                 state.matched[row..row + self.sensors.len()].fill(false);
+                self.reaction(state, a, event.t);
             }
         }
         scan.clear();
         state.scan = scan;
     }
 
+    /// An edge of actuator `a` at `t`: the reaction to every sensor whose
+    /// window is open and has had none from `a`.
+    fn reaction(&mut self, state: &mut LogState, a: usize, t: Time) {
+        for s in 0..self.sensors.len() {
+            let p = self.pair(a, s);
+            let Some((t_s, rising)) = state.last_sensor[s] else {
+                continue;
+            };
+            if state.reacted[p] || t - t_s > self.max_delay {
+                continue;
+            }
+            state.reacted[p] = true;
+            self.reactions[p][usize::from(rising)] += 1;
+            let bins = self.bins;
+            let h = self.reaction_delays[p * 2 + usize::from(rising)]
+                .get_or_insert_with(|| vec![0; bins.count].into_boxed_slice());
+            let b = bins.bin(t - t_s);
+            h[b] = h[b].saturating_add(1);
+        }
+    }
+
     fn sensor_edge(&mut self, state: &mut LogState, s: usize, t: Time, rising: bool) {
         let d = usize::from(rising);
         self.edges[s][d] += 1;
+        state.last_sensor[s] = Some((t, rising));
+        for a in 0..self.actuators.len() {
+            let p = self.pair(a, s);
+            state.reacted[p] = false;
+        }
         for a in 0..self.actuators.len() {
             let p = self.pair(a, s);
             let Some((t_a, a_rising)) = state.last[a] else {
@@ -557,6 +803,157 @@ impl Stats {
         })
     }
 
+    /// If `s`'s edges in direction `d` follow `a`'s (criteria 1. and 2. of
+    /// the [module documentation](self) in that direction alone), their
+    /// typical delay.
+    fn follows_in(&self, a: usize, s: usize, d: usize, options: &SuggestOptions) -> Option<Time> {
+        let p = self.pair(a, s);
+        let edges = self.edges[s][d];
+        if edges == 0 || (self.followers[p][d] as f64) < options.follower_share * edges as f64 {
+            return None;
+        }
+        let (mut weighted, mut weight) = (0f64, 0u64);
+        for a_rising in 0..2 {
+            let k = p * 4 + a_rising * 2 + d;
+            let count = self.counts[k];
+            let Some(h) = &self.histograms[k] else {
+                continue;
+            };
+            if count == 0 || (count as f64) < options.min_pair_share * edges as f64 {
+                continue;
+            }
+            let q = |x| self.bins.quantile(h, count, x);
+            let (q05, q50, q95) = (q(0.05), q(0.5), q(0.95));
+            let allowed = (options.spread_ratio * q50 as f64).max(options.min_spread as f64);
+            if (q95 - q05) as f64 > allowed {
+                return None;
+            }
+            weighted += q50 as f64 * count as f64;
+            weight += count;
+        }
+        (weight > 0).then(|| (weighted / weight as f64).round() as Time)
+    }
+
+    /// Per direction (falling, rising), the actuator whose edges `s`'s edges
+    /// follow in that direction alone with the shortest typical delay (the
+    /// most direct cause, as for whole sensors).
+    fn followed_by_direction(&self, s: usize, options: &SuggestOptions) -> [Option<usize>; 2] {
+        [0, 1].map(|d| {
+            (0..self.actuators.len())
+                .filter_map(|a| self.follows_in(a, s, d, options).map(|t| (t, a)))
+                .min()
+                .map(|(_, a)| a)
+        })
+    }
+
+    /// How `a` reacts to `s`: the shares, and the delays in the direction
+    /// with the larger share.
+    fn reaction_evidence(&self, a: usize, s: usize) -> InputEvidence {
+        let p = self.pair(a, s);
+        let mut e = InputEvidence {
+            sensor: self.sensors[s],
+            actuator: self.actuators[a],
+            edges: self.edges[s],
+            reactions: self.reactions[p],
+            delays: None,
+        };
+        let rising = e.share(true) >= e.share(false);
+        let d = usize::from(rising);
+        if let Some(h) = &self.reaction_delays[p * 2 + d] {
+            let count = e.reactions[d];
+            let q = |x| self.bins.quantile(h, count, x);
+            e.delays = Some(DelayStats {
+                actuator_rising: rising,
+                sensor_rising: rising,
+                count,
+                q05: q(0.05),
+                q50: q(0.5),
+                q95: q(0.95),
+            });
+        }
+        e
+    }
+
+    /// The actuator that reacts, with concentrated delays, to the largest share
+    /// of `s`'s edges in one direction; the earlier on a tie. Without any
+    /// concentrated reaction, the largest share, for the record.
+    fn best_reaction(
+        &self,
+        s: usize,
+        options: &SuggestOptions,
+    ) -> Option<(usize, InputEvidence, bool)> {
+        let concentrated = |e: &InputEvidence| {
+            e.delays.is_some_and(|d| {
+                let allowed = (options.spread_ratio * d.q50 as f64).max(options.min_spread as f64);
+                ((d.q95 - d.q05) as f64) <= allowed
+            })
+        };
+        (0..self.actuators.len())
+            .map(|a| {
+                let e = self.reaction_evidence(a, s);
+                let ok = concentrated(&e);
+                (a, e, ok)
+            })
+            .rev()
+            .max_by(|(_, x, ok_x), (_, y, ok_y)| {
+                ok_x.cmp(ok_y)
+                    .then(x.best_share().total_cmp(&y.best_share()))
+            })
+    }
+
+    fn suggestion(&self, signals: &SignalTable, options: &SuggestOptions) -> Suggestion {
+        let mut parts = self.parts(signals, options);
+        let placed: Vec<SignalId> = parts
+            .iter()
+            .flat_map(|p| p.sensors.iter().copied())
+            .collect();
+        let mut unplaced = Vec::new();
+        let mut merges = Vec::new();
+        for s in 0..self.sensors.len() {
+            if placed.contains(&self.sensors[s]) {
+                continue;
+            }
+            let followed = self.followed_by_direction(s, options);
+            match followed {
+                [Some(a), None] | [None, Some(a)] => {
+                    // Moved by the part one way, free the other: a sensor of
+                    // the part, which learning classifies edge by edge.
+                    parts[a].half.push(HalfFollower {
+                        sensor: self.sensors[s],
+                        falling: followed[0].map(|a| self.actuators[a]),
+                        rising: followed[1].map(|a| self.actuators[a]),
+                    });
+                    continue;
+                }
+                [Some(a), Some(b)] => {
+                    // Moved one way by one order and back by another (a
+                    // double-acting valve): one part with both orders.
+                    parts[a].half.push(HalfFollower {
+                        sensor: self.sensors[s],
+                        falling: Some(self.actuators[a]),
+                        rising: Some(self.actuators[b]),
+                    });
+                    merges.push((a, b));
+                    continue;
+                }
+                [None, None] => {}
+            }
+            let Some((a, e, concentrated)) = self.best_reaction(s, options) else {
+                continue;
+            };
+            let enough = e.edges[0] + e.edges[1] >= options.min_edges;
+            if enough && concentrated && e.best_share() >= options.follower_share {
+                parts[a].inputs.push(e);
+            } else {
+                unplaced.push(e);
+            }
+        }
+        Suggestion {
+            parts: merged(parts, &merges),
+            unplaced,
+        }
+    }
+
     fn parts(&self, signals: &SignalTable, options: &SuggestOptions) -> Vec<SuggestedPart> {
         let mut parts: Vec<SuggestedPart> = self
             .actuators
@@ -566,6 +963,8 @@ impl Stats {
                 actuators: vec![a],
                 sensors: Vec::new(),
                 evidence: Vec::new(),
+                inputs: Vec::new(),
+                half: Vec::new(),
             })
             .collect();
         for s in 0..self.sensors.len() {

@@ -7,10 +7,27 @@
 //! `F`, one in mode `G` (normal or another fault). A cycle of such pairs that
 //! includes at least one observed scan is an observation that can repeat for
 //! ever and fits both: `F` is not diagnosable from `G`, and the cycle is the
-//! counterexample. (Runs that stop forever, with no event at all, are left out:
-//! like libFAUDES, the check assumes the plant keeps running.) Without such a
-//! cycle, the pairs form an acyclic graph, and its longest path bounds how many
-//! observed scans it takes, once the fault has shown, to tell `F` apart.
+//! counterexample. Without such a cycle, the pairs form an acyclic graph, and
+//! its longest path bounds how many observed scans it takes, once the fault has
+//! shown, to tell `F` apart. Like libFAUDES, that verdict assumes the plant keeps
+//! running.
+//!
+//! # When the control waits for ever
+//!
+//! A sequential control program waits for the sensor it needs next, and a fault
+//! may withhold that sensor for ever: the plant stops, and the observations end
+//! in silence. Silence is evidence where a hypothesis has a deadline (the
+//! compiled automaton then has a time transition that drops it), and none where
+//! no hypothesis expects anything. `F` is *isolable when the control waits* if,
+//! besides the above, no compiled node can end the observations with a
+//! hypothesis of `F` and one of another fault `G` both alive, once the fault
+//! has shown (no normal hypothesis left). The node must be one where the plant
+//! can fall silent: no deadline of any hypothesis is pending (no time
+//! transition leaves it), and the learned control waits for the part there
+//! (every exit the learned runs took from that observed state includes a
+//! sensor edge of the part; a command given on its own is assumed to come).
+//! [`Waiting`] names the state, the first observation that would tell the two
+//! apart, and what the learned control waits for instead.
 
 use std::collections::HashMap;
 
@@ -35,6 +52,16 @@ pub struct FaultDiagnosability {
     pub isolable: bool,
     /// The faults it cannot be told apart from (with `N` when not detectable).
     pub confused_with: Vec<String>,
+    /// Isolable also when the control waits for ever: no silent end of the
+    /// observations fits it and another fault, once it has shown. Implies
+    /// `isolable`.
+    pub isolable_when_waiting: bool,
+    /// The faults a silent end leaves it confused with (empty when not
+    /// `isolable`: the running verdict says it already).
+    pub confused_when_waiting: Vec<String>,
+    /// When isolable only while the plant runs: where the control waits, and
+    /// what would tell the faults apart.
+    pub waiting: Option<Waiting>,
     /// When diagnosable: at most this many observed scans after the fault shows.
     pub bound_scans: Option<usize>,
     /// When not: two runs with the same observations, one with the fault.
@@ -53,6 +80,21 @@ pub struct Counterexample {
     pub faulty: Vec<String>,
     /// The physical states of the other run.
     pub other_run: Vec<String>,
+}
+
+/// A silent end that fits the fault and another one.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Waiting {
+    /// The other fault.
+    pub other: String,
+    /// The observed state where the plant falls silent.
+    pub state: String,
+    /// The first observation that would tell the two apart from there, if the
+    /// learned runs contain one, e.g. `FE(A4) (after 1.2 s without event)`.
+    pub until: Option<String>,
+    /// The sensor events the learned control waits for in that state (the
+    /// model's exits from it), e.g. `RE(C5)`.
+    pub control_waits_for: Vec<String>,
 }
 
 type Pair = (NodeIndex, Hypothesis, Hypothesis);
@@ -131,6 +173,7 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
     let successors = Successors::new(engine, compiled);
     let hyps_of = |i: NodeIndex| -> &[Hypothesis] { &engine.state(graph[i].state).hyps };
 
+    let silent = silent_nodes(engine, compiled);
     let mut out = Vec::new();
     for (m, mode) in part.modes.iter().enumerate().skip(1) {
         let f = m as u16;
@@ -237,6 +280,32 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
         }
         let detectable = !confused.iter().any(|l| l == "N");
         let isolable = confused.is_empty();
+        let mut confused_when_waiting: Vec<String> = Vec::new();
+        let mut waiting = None;
+        if isolable {
+            for (u, &(i, _, b)) in nodes.iter().enumerate() {
+                if !silent[i.index()] || b.mode == 0 {
+                    continue;
+                }
+                let other = &part.modes[b.mode as usize].label;
+                if !confused_when_waiting.contains(other) {
+                    confused_when_waiting.push(other.clone());
+                }
+                if waiting.is_none() {
+                    let ctx = PairContext {
+                        engine,
+                        compiled,
+                        successors: &successors,
+                        nodes: &nodes,
+                        adj: &adj,
+                        fault: f,
+                        unit,
+                    };
+                    waiting = Some(ctx.waiting(u, other));
+                }
+            }
+            confused_when_waiting.sort();
+        }
         let bound = if cycle.is_none() {
             Some(longest(&adj))
         } else {
@@ -252,11 +321,153 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
             detectable,
             isolable,
             confused_with: confused,
+            isolable_when_waiting: isolable && confused_when_waiting.is_empty(),
+            confused_when_waiting,
+            waiting,
             bound_scans: bound,
             counterexample,
         });
     }
     out
+}
+
+/// Per compiled node: whether the observations can end there in silence with
+/// the fault shown. No hypothesis is normal; no time transition leaves the
+/// node and no clock with a deadline is unknown (the exploration starts with
+/// unknown clocks, which a replay knows after their first edge), so no
+/// hypothesis has a deadline pending; and every exit the learned runs took from
+/// its observed state includes an edge of the part's sensors: the control waits
+/// for the part. A command the control gives on its own there (an exit made of
+/// commands only) is assumed to come, as it depends on a timer or on other
+/// parts, which a fault of this part does not hold up.
+fn silent_nodes(engine: &Engine, compiled: &Compiled) -> Vec<bool> {
+    let part = &engine.part;
+    let graph = &compiled.graph;
+    graph
+        .node_indices()
+        .map(|i| {
+            let state = engine.state(graph[i].state);
+            let unknown = state
+                .timers
+                .iter()
+                .zip(&graph[i].readings)
+                .any(|(timers, reading)| !timers.is_empty() && reading.is_none());
+            let deadline = unknown
+                || graph
+                    .edges(i)
+                    .any(|e| matches!(e.weight(), Trigger::Time { .. }));
+            let shown = state.hyps.iter().all(|h| h.mode != 0);
+            let control_acts = part.model_state(state.obs).is_some_and(|s| {
+                part.moves(s)
+                    .iter()
+                    .any(|m| m.changed & !part.actuator_mask() == 0)
+            });
+            !deadline && shown && !control_acts
+        })
+        .collect()
+}
+
+/// What [`PairContext::waiting`] reads: one fault's pair graph and where it
+/// came from.
+struct PairContext<'a> {
+    engine: &'a Engine,
+    compiled: &'a Compiled,
+    successors: &'a Successors,
+    nodes: &'a [Pair],
+    adj: &'a PairGraph,
+    fault: u16,
+    unit: TimeUnit,
+}
+
+/// Pairs visited when looking for the observation that separates a silent pair.
+const SEPARATION_SEARCH: usize = 10_000;
+
+impl PairContext<'_> {
+    /// Describes the silent pair `u`, confused with `other`.
+    fn waiting(&self, u: usize, other: &str) -> Waiting {
+        let part = &self.engine.part;
+        let (i, _, _) = self.nodes[u];
+        let obs = self.engine.state(self.compiled.graph[i].state).obs;
+
+        let control_waits_for = part
+            .model_state(obs)
+            .map(|s| {
+                let mut events: Vec<String> = part
+                    .moves(s)
+                    .iter()
+                    .filter(|m| m.changed & !part.actuator_mask() != 0)
+                    .map(|m| part.edges(obs, m.changed))
+                    .collect();
+                events.sort();
+                events.dedup();
+                events
+            })
+            .unwrap_or_default();
+        Waiting {
+            other: other.to_string(),
+            state: part.describe(obs),
+            until: self.separation(u),
+            control_waits_for,
+        }
+    }
+
+    /// The first observation, breadth first from pair `u` along observations
+    /// that fit both, after which only one of the two hypotheses is left.
+    fn separation(&self, u: usize) -> Option<String> {
+        let graph = &self.compiled.graph;
+        let mut seen = vec![false; self.adj.len()];
+        let mut queue = std::collections::VecDeque::from([u]);
+        seen[u] = true;
+        let mut visited = 0;
+        while let Some(w) = queue.pop_front() {
+            visited += 1;
+            if visited > SEPARATION_SEARCH {
+                return None;
+            }
+            let (j, a, b) = self.nodes[w];
+            let hyps = &self.engine.state(graph[j].state).hyps;
+            let pa = hyps.iter().position(|h| *h == a)?;
+            let pb = hyps.iter().position(|h| *h == b)?;
+            for e in graph.edges(j) {
+                let target = &self.engine.state(graph[e.target()].state).hyps;
+                let alive_a = self
+                    .successors
+                    .of(e.id(), pa)
+                    .iter()
+                    .any(|&x| target[x as usize].mode == self.fault);
+                let alive_b = self
+                    .successors
+                    .of(e.id(), pb)
+                    .iter()
+                    .any(|&y| target[y as usize].mode != self.fault);
+                if alive_a != alive_b {
+                    return Some(self.observation(j, e.id()));
+                }
+            }
+            for &(v, _, _) in self.adj.out(w) {
+                if !seen[v] {
+                    seen[v] = true;
+                    queue.push_back(v);
+                }
+            }
+        }
+        None
+    }
+
+    /// An observation of the compiled graph, in words.
+    fn observation(&self, node: NodeIndex, e: petgraph::graph::EdgeIndex) -> String {
+        let part = &self.engine.part;
+        let obs = self.engine.state(self.compiled.graph[node].state).obs;
+        match &self.compiled.graph[e] {
+            Trigger::Scan(ch) => part.edges(obs, *ch),
+            Trigger::Time { clock, at } => format!(
+                "no event until {} reads {} {}",
+                part.clock_name(*clock),
+                self.unit.format(*at),
+                self.unit.name()
+            ),
+        }
+    }
 }
 
 type PairEdge = (usize, bool, petgraph::graph::EdgeIndex);
