@@ -9,7 +9,9 @@ use std::path::PathBuf;
 
 use clap::Args;
 use diagnoser::diagnosis::compile::{Commands, Compiled, Size};
-use diagnoser::diagnosis::diagnosability::{FaultDiagnosability, Waiting, check};
+use diagnoser::diagnosis::diagnosability::{
+    FaultDiagnosability, Waiting, check, separate_under_any_order,
+};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::faudes;
 use diagnoser::model::Model;
@@ -92,7 +94,8 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
         let size = compiled.size();
         product *= size.states as f64;
         sum += size.states;
-        let verdicts = check(&mut engine, &compiled, model.time_unit);
+        let mut verdicts = check(&mut engine, &compiled, model.time_unit);
+        separate_under_any_order(&mut engine, &mut verdicts, model.time_unit);
         if let Some(dir) = &args.dot {
             let path = dir.join(format!("{}.diagnoser.dot", engine.part.name));
             fs::write(&path, compiled.to_dot(&engine, model.time_unit))
@@ -271,7 +274,7 @@ fn write_verdict(out: &mut impl Write, v: &FaultDiagnosability) -> std::io::Resu
             v.bound_scans.unwrap_or(0)
         ),
         (true, true) => format!(
-            "diagnosable while the plant runs: detected and isolated within {} observed scan(s) of showing; if the control waits for ever, not isolable from {}",
+            "diagnosable while the plant runs: detected and isolated within {} observed scan(s) of showing; if the control waits for ever, not told from {}",
             v.bound_scans.unwrap_or(0),
             v.confused_when_waiting.join(", ")
         ),
@@ -328,8 +331,12 @@ fn write_verdict(out: &mut impl Write, v: &FaultDiagnosability) -> std::io::Resu
 /// Why a fault is isolable only while the plant runs, in one sentence.
 fn waiting_sentence(label: &str, w: &Waiting) -> String {
     let until = match &w.until {
-        Some(o) => format!("until {o}"),
-        None => "for ever (no learned observation tells them apart)".to_string(),
+        Some(o) if w.orders_outside_control.is_empty() => format!("until {o}"),
+        Some(o) => format!(
+            "until {o} ({}: an order the learned control does not give there)",
+            w.orders_outside_control.join(", ")
+        ),
+        None => "for ever (no observation tells them apart)".to_string(),
     };
     let control = if w.control_waits_for.is_empty() {
         "the learned runs never left that state".to_string()
@@ -339,10 +346,17 @@ fn waiting_sentence(label: &str, w: &Waiting) -> String {
             w.control_waits_for.join(" or ")
         )
     };
-    format!(
-        "{label} and {} look the same once the plant stops at {} {until}; {control}",
-        w.other, w.state
-    )
+    if w.other == "N" {
+        format!(
+            "{label} goes unnoticed if the plant stops at {}: a normal run looks the same {until}; {control}",
+            w.state
+        )
+    } else {
+        format!(
+            "{label} and {} look the same once the plant stops at {} {until}; {control}",
+            w.other, w.state
+        )
+    }
 }
 
 fn faudes_check(gen_path: &PathBuf, map: &PathBuf, json: bool) -> Result<(), Failure> {

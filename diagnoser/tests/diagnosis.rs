@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use diagnoser::diagnosis::compile::Compiled;
-use diagnoser::diagnosis::diagnosability::check;
+use diagnoser::diagnosis::diagnosability::{check, separate_under_any_order};
 use diagnoser::diagnosis::fusion::Coordinator;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::log::read_events;
@@ -123,8 +123,33 @@ fn a_control_that_waits_for_a_withheld_sensor_hides_what_a_running_plant_shows()
         .expect("turntable")
         .clone();
     let compiled = Compiled::explore(&mut engine, 2);
-    let verdicts = check(&mut engine, &compiled, TimeUnit::Ms);
+    let mut verdicts = check(&mut engine, &compiled, TimeUnit::Ms);
+    // Under the learned control nothing tells them apart.
+    assert!(
+        verdicts
+            .iter()
+            .filter_map(|v| v.waiting.as_ref())
+            .all(|w| w.until.is_none()),
+        "{verdicts:?}"
+    );
+    separate_under_any_order(&mut engine, &mut verdicts, TimeUnit::Ms);
     let of = |l: &str| verdicts.iter().find(|v| v.label == l).expect("verdict");
+    // Releasing the turntable with the plate at C5 (or ordering it with the
+    // plate at C4) brings a moving plate back in time; a blocked one stays.
+    for (f, order) in [
+        ("F3", "FE(A4)"),
+        ("F11", "FE(A4)"),
+        ("F1", "RE(A4)"),
+        ("F12", "RE(A4)"),
+    ] {
+        let w = of(f).waiting.as_ref().expect("waiting");
+        let until = w.until.as_deref().unwrap_or_default();
+        assert!(
+            until.starts_with(order) && until.contains("no event until"),
+            "{f}: {w:?}"
+        );
+        assert_eq!(w.orders_outside_control, [order], "{f}: {w:?}");
+    }
     // A sensor stuck at its resting value and a plate blocked on the way to it
     // look the same once the control waits for that sensor: the plate's return
     // that would tell them apart never comes.

@@ -124,7 +124,8 @@ pub const NODE_LIMIT: usize = 200_000;
 impl Compiled {
     /// Explores every state reachable from the model's states (normal, clocks
     /// unknown and then at 0), with observed scans of at most `max_bits` edges
-    /// and commands as in the learned runs ([`Commands::Learned`]).
+    /// or as the learned transitions take them, and commands as in the learned
+    /// runs ([`Commands::Learned`]).
     pub fn explore(engine: &mut Engine, max_bits: u32) -> Compiled {
         Compiled::explore_with(engine, max_bits, Commands::Learned)
     }
@@ -135,10 +136,18 @@ impl Compiled {
         let part = engine.part.clone();
         let nbits = part.names.len() as u32;
         let clocks = part.clocks.len();
-        // Observed scans of at most `max_bits` edges.
-        let masks: Vec<u32> = (1u32..(1 << nbits))
+        // Observed scans of at most `max_bits` edges, and every learned
+        // transition's scan, however many edges it has: the control often
+        // reacts to a sensor in the scan that shows it, and a diagnoser that
+        // never took such a scan would never reach the states after it.
+        let mut masks: Vec<u32> = (1u32..(1 << nbits))
             .filter(|m| m.count_ones() <= max_bits)
             .collect();
+        for s in 0..part.state_vectors().len() {
+            masks.extend(part.moves(s).iter().map(|m| m.changed));
+        }
+        masks.sort_unstable_by_key(|m| (m.count_ones(), *m));
+        masks.dedup();
         let mut graph: DiGraph<Node, Trigger> = DiGraph::new();
         let mut index: HashMap<Node, NodeIndex> = HashMap::new();
         let mut queue: VecDeque<NodeIndex> = VecDeque::new();

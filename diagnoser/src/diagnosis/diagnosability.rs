@@ -20,8 +20,10 @@
 //! compiled automaton then has a time transition that drops it), and none where
 //! no hypothesis expects anything. `F` is *isolable when the control waits* if,
 //! besides the above, no compiled node can end the observations with a
-//! hypothesis of `F` and one of another fault `G` both alive, once the fault
-//! has shown (no normal hypothesis left). The node must be one where the plant
+//! hypothesis of `F` and one of another fault `G` both alive once the fault has
+//! shown (no normal hypothesis left), nor with a hypothesis of `F` whose
+//! physical state differs from a normal one's beside it (the fault has changed
+//! the plant and nothing shows it). The node must be one where the plant
 //! can fall silent: no deadline of any hypothesis is pending (no time
 //! transition leaves it), and the learned control waits for the part there
 //! (every exit the learned runs took from that observed state includes a
@@ -34,10 +36,12 @@ use std::collections::HashMap;
 use petgraph::graph::NodeIndex;
 use petgraph::visit::EdgeRef;
 
-use super::compile::{Compiled, Trigger};
+use petgraph::graph::EdgeIndex;
+
+use super::compile::{Commands, Compiled, Trigger};
 use super::engine::Engine;
 use super::part::{Clock, Hypothesis};
-use crate::TimeUnit;
+use crate::{Time, TimeUnit};
 
 /// The verdict on one fault of a part.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -56,8 +60,9 @@ pub struct FaultDiagnosability {
     /// observations fits it and another fault, once it has shown. Implies
     /// `isolable`.
     pub isolable_when_waiting: bool,
-    /// The faults a silent end leaves it confused with (empty when not
-    /// `isolable`: the running verdict says it already).
+    /// The modes a silent end leaves it confused with: `N` when the fault can
+    /// change the plant with nothing to show for it, other faults once it has
+    /// shown (empty when not `isolable`: the running verdict says it already).
     pub confused_when_waiting: Vec<String>,
     /// When isolable only while the plant runs: where the control waits, and
     /// what would tell the faults apart.
@@ -82,6 +87,85 @@ pub struct Counterexample {
     pub other_run: Vec<String>,
 }
 
+/// The graph of pairs (hypothesis of fault `f`, hypothesis of another mode)
+/// that follow the same observations through `compiled`.
+fn pair_graph(
+    engine: &Engine,
+    compiled: &Compiled,
+    successors: &Successors,
+    f: u16,
+) -> (Vec<Pair>, PairGraph) {
+    let graph = &compiled.graph;
+    let hyps_of = |i: NodeIndex| -> &[Hypothesis] { &engine.state(graph[i].state).hyps };
+    // Every pair (F hypothesis, other hypothesis) in every node, numbered
+    // node by node, F hypothesis then other: the pair of positions
+    // (a, b) of node i is `base[i] + rank[a] * others[i] + rank[b]`.
+    let mut nodes: Vec<Pair> = Vec::new();
+    let mut base = Vec::with_capacity(graph.node_count());
+    let mut others = Vec::with_capacity(graph.node_count());
+    let mut rank = vec![0usize; successors.hyps];
+    for i in graph.node_indices() {
+        let hyps = hyps_of(i);
+        let (mut in_f, mut not_f) = (0, 0);
+        for (p, h) in hyps.iter().enumerate() {
+            let r = &mut rank[successors.first_hyp[i.index()] + p];
+            if h.mode == f {
+                *r = in_f;
+                in_f += 1;
+            } else {
+                *r = not_f;
+                not_f += 1;
+            }
+        }
+        base.push(nodes.len());
+        others.push(not_f);
+        for &a in hyps.iter().filter(|h| h.mode == f) {
+            for &b in hyps.iter().filter(|h| h.mode != f) {
+                nodes.push((i, a, b));
+            }
+        }
+    }
+    let mut adj = PairGraph::with_nodes(nodes.len());
+    for i in graph.node_indices() {
+        let hyps = hyps_of(i);
+        let positions_f: Vec<usize> = (0..hyps.len()).filter(|&p| hyps[p].mode == f).collect();
+        let positions_o: Vec<usize> = (0..hyps.len()).filter(|&p| hyps[p].mode != f).collect();
+        for (ra, &pa) in positions_f.iter().enumerate() {
+            for (rb, &pb) in positions_o.iter().enumerate() {
+                // Pairs are numbered in the order they are visited here.
+                debug_assert_eq!(adj.len(), base[i.index()] + ra * others[i.index()] + rb);
+                adj.start_node();
+                for e in graph.edges(i) {
+                    let scan = matches!(e.weight(), Trigger::Scan(_));
+                    let na = successors.of(e.id(), pa);
+                    if na.is_empty() {
+                        continue;
+                    }
+                    let nb = successors.of(e.id(), pb);
+                    let t = e.target();
+                    let target = hyps_of(t);
+                    let first = successors.first_hyp[t.index()];
+                    for &x in na {
+                        if target[x as usize].mode != f {
+                            continue;
+                        }
+                        for &y in nb {
+                            if target[y as usize].mode == f {
+                                continue;
+                            }
+                            let to = base[t.index()]
+                                + rank[first + x as usize] * others[t.index()]
+                                + rank[first + y as usize];
+                            adj.push((to, scan, e.id()));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    (nodes, adj)
+}
+
 /// A silent end that fits the fault and another one.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Waiting {
@@ -89,12 +173,88 @@ pub struct Waiting {
     pub other: String,
     /// The observed state where the plant falls silent.
     pub state: String,
-    /// The first observation that would tell the two apart from there, if the
-    /// learned runs contain one, e.g. `FE(A4) (after 1.2 s without event)`.
+    /// The shortest observations from there after which only one of the two
+    /// is left, if any, e.g. `FE(A4) → RE(C4)`. Searched under the learned
+    /// control, then (with [`separate_under_any_order`]) under any order.
     pub until: Option<String>,
+    /// Orders in `until` that the learned control does not give there.
+    pub orders_outside_control: Vec<String>,
     /// The sensor events the learned control waits for in that state (the
     /// model's exits from it), e.g. `RE(C5)`.
     pub control_waits_for: Vec<String>,
+    /// The silent node and pair, to search again under any order.
+    #[serde(skip)]
+    silent: SilentPair,
+}
+
+/// A pair of hypotheses in a compiled node, found again in another
+/// exploration by its engine state and clock readings.
+#[derive(Debug, Clone, PartialEq)]
+struct SilentPair {
+    state: u32,
+    readings: Vec<Option<Time>>,
+    fault: Hypothesis,
+    other: Hypothesis,
+}
+
+/// Whether the learned control gives the orders of scan `ch` in observed
+/// state `obs` (as [`Commands::Learned`] lets them happen).
+fn learned_order(part: &super::part::PartDiagnoser, obs: u32, ch: u32) -> bool {
+    part.model_state(obs).is_some_and(|s| {
+        let motion = part.motion(ch);
+        part.moves(s).iter().any(|m| m.changed == motion)
+    })
+}
+
+/// For every verdict whose silent end no learned observation separates,
+/// searches for one under any order: explores `engine`'s diagnoser once with
+/// [`Commands::Any`], then, from the same node and pair, the shortest
+/// observations that leave only one of the two. The result goes to
+/// [`Waiting::until`] and [`Waiting::orders_outside_control`] (e.g. releasing
+/// A4 brings a moving plate back to C4, and a blocked one does not).
+pub fn separate_under_any_order(
+    engine: &mut Engine,
+    verdicts: &mut [FaultDiagnosability],
+    unit: TimeUnit,
+) {
+    let wanted = |v: &FaultDiagnosability| v.waiting.as_ref().is_some_and(|w| w.until.is_none());
+    if !verdicts.iter().any(wanted) {
+        return;
+    }
+    let any = Compiled::explore_with(engine, 2, Commands::Any);
+    let successors = Successors::new(engine, &any);
+    for v in verdicts.iter_mut().filter(|v| wanted(v)) {
+        let Some(w) = v.waiting.as_mut() else {
+            continue;
+        };
+        let f = w.silent.fault.mode;
+        let Some(node) = any.graph.node_indices().find(|&i| {
+            any.graph[i].state == w.silent.state && any.graph[i].readings == w.silent.readings
+        }) else {
+            continue;
+        };
+        let (nodes, adj) = pair_graph(engine, &any, &successors, f);
+        let Some(u) = nodes
+            .iter()
+            .position(|&p| p == (node, w.silent.fault, w.silent.other))
+        else {
+            continue;
+        };
+        let ctx = PairContext {
+            engine,
+            compiled: &any,
+            successors: &successors,
+            nodes: &nodes,
+            adj: &adj,
+            fault: f,
+            unit,
+        };
+        if let Some(path) = ctx.separation(u) {
+            let (text, orders) = ctx.path_text(&path);
+            w.until = Some(text);
+            w.orders_outside_control = orders;
+        }
+    }
 }
 
 type Pair = (NodeIndex, Hypothesis, Hypothesis);
@@ -169,80 +329,12 @@ impl Successors {
 /// Decides the diagnosability of every fault of `engine`'s part on `compiled`.
 pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<FaultDiagnosability> {
     let part = engine.part.clone();
-    let graph = &compiled.graph;
     let successors = Successors::new(engine, compiled);
-    let hyps_of = |i: NodeIndex| -> &[Hypothesis] { &engine.state(graph[i].state).hyps };
-
     let silent = silent_nodes(engine, compiled);
     let mut out = Vec::new();
     for (m, mode) in part.modes.iter().enumerate().skip(1) {
         let f = m as u16;
-        // Every pair (F hypothesis, other hypothesis) in every node, numbered
-        // node by node, F hypothesis then other: the pair of positions
-        // (a, b) of node i is `base[i] + rank[a] * others[i] + rank[b]`.
-        let mut nodes: Vec<Pair> = Vec::new();
-        let mut base = Vec::with_capacity(graph.node_count());
-        let mut others = Vec::with_capacity(graph.node_count());
-        let mut rank = vec![0usize; successors.hyps];
-        for i in graph.node_indices() {
-            let hyps = hyps_of(i);
-            let (mut in_f, mut not_f) = (0, 0);
-            for (p, h) in hyps.iter().enumerate() {
-                let r = &mut rank[successors.first_hyp[i.index()] + p];
-                if h.mode == f {
-                    *r = in_f;
-                    in_f += 1;
-                } else {
-                    *r = not_f;
-                    not_f += 1;
-                }
-            }
-            base.push(nodes.len());
-            others.push(not_f);
-            for &a in hyps.iter().filter(|h| h.mode == f) {
-                for &b in hyps.iter().filter(|h| h.mode != f) {
-                    nodes.push((i, a, b));
-                }
-            }
-        }
-        let mut adj = PairGraph::with_nodes(nodes.len());
-        for i in graph.node_indices() {
-            let hyps = hyps_of(i);
-            let positions_f: Vec<usize> = (0..hyps.len()).filter(|&p| hyps[p].mode == f).collect();
-            let positions_o: Vec<usize> = (0..hyps.len()).filter(|&p| hyps[p].mode != f).collect();
-            for (ra, &pa) in positions_f.iter().enumerate() {
-                for (rb, &pb) in positions_o.iter().enumerate() {
-                    // Pairs are numbered in the order they are visited here.
-                    debug_assert_eq!(adj.len(), base[i.index()] + ra * others[i.index()] + rb);
-                    adj.start_node();
-                    for e in graph.edges(i) {
-                        let scan = matches!(e.weight(), Trigger::Scan(_));
-                        let na = successors.of(e.id(), pa);
-                        if na.is_empty() {
-                            continue;
-                        }
-                        let nb = successors.of(e.id(), pb);
-                        let t = e.target();
-                        let target = hyps_of(t);
-                        let first = successors.first_hyp[t.index()];
-                        for &x in na {
-                            if target[x as usize].mode != f {
-                                continue;
-                            }
-                            for &y in nb {
-                                if target[y as usize].mode == f {
-                                    continue;
-                                }
-                                let to = base[t.index()]
-                                    + rank[first + x as usize] * others[t.index()]
-                                    + rank[first + y as usize];
-                                adj.push((to, scan, e.id()));
-                            }
-                        }
-                    }
-                }
-            }
-        }
+        let (nodes, adj) = pair_graph(engine, compiled, &successors, f);
         let comp = adj.components();
         let cycle = find_cycle(&adj, &comp);
         let mut confused: Vec<String> = Vec::new();
@@ -283,8 +375,16 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
         let mut confused_when_waiting: Vec<String> = Vec::new();
         let mut waiting = None;
         if isolable {
-            for (u, &(i, _, b)) in nodes.iter().enumerate() {
-                if !silent[i.index()] || b.mode == 0 {
+            for (u, &(i, a, b)) in nodes.iter().enumerate() {
+                let Some(shown) = silent[i.index()] else {
+                    continue;
+                };
+                // Beside a normal hypothesis, a fault that has changed the
+                // plant (a physical state of its own) goes undetected; one
+                // that has not is dormant. Beside another fault, once the
+                // fault has shown.
+                let confused = if b.mode == 0 { a.phys != b.phys } else { shown };
+                if !confused {
                     continue;
                 }
                 let other = &part.modes[b.mode as usize].label;
@@ -331,16 +431,17 @@ pub fn check(engine: &mut Engine, compiled: &Compiled, unit: TimeUnit) -> Vec<Fa
     out
 }
 
-/// Per compiled node: whether the observations can end there in silence with
-/// the fault shown. No hypothesis is normal; no time transition leaves the
-/// node and no clock with a deadline is unknown (the exploration starts with
-/// unknown clocks, which a replay knows after their first edge), so no
-/// hypothesis has a deadline pending; and every exit the learned runs took from
-/// its observed state includes an edge of the part's sensors: the control waits
-/// for the part. A command the control gives on its own there (an exit made of
-/// commands only) is assumed to come, as it depends on a timer or on other
-/// parts, which a fault of this part does not hold up.
-fn silent_nodes(engine: &Engine, compiled: &Compiled) -> Vec<bool> {
+/// Per compiled node: whether the observations can end there in silence, and
+/// if so whether the fault has shown there (no normal hypothesis left). Silent:
+/// no time transition leaves the node and no clock with a deadline is unknown
+/// (the exploration starts with unknown clocks, which a replay knows after
+/// their first edge), so no hypothesis has a deadline pending; and every exit
+/// the learned runs took from its observed state includes an edge of the
+/// part's sensors: the control waits for the part. A command the control gives
+/// on its own there (an exit made of commands only) is assumed to come, as it
+/// depends on a timer or on other parts, which a fault of this part does not
+/// hold up.
+fn silent_nodes(engine: &Engine, compiled: &Compiled) -> Vec<Option<bool>> {
     let part = &engine.part;
     let graph = &compiled.graph;
     graph
@@ -356,13 +457,13 @@ fn silent_nodes(engine: &Engine, compiled: &Compiled) -> Vec<bool> {
                 || graph
                     .edges(i)
                     .any(|e| matches!(e.weight(), Trigger::Time { .. }));
-            let shown = state.hyps.iter().all(|h| h.mode != 0);
             let control_acts = part.model_state(state.obs).is_some_and(|s| {
                 part.moves(s)
                     .iter()
                     .any(|m| m.changed & !part.actuator_mask() == 0)
             });
-            !deadline && shown && !control_acts
+            let shown = state.hyps.iter().all(|h| h.mode != 0);
+            (!deadline && !control_acts).then_some(shown)
         })
         .collect()
 }
@@ -403,21 +504,36 @@ impl PairContext<'_> {
                 events
             })
             .unwrap_or_default();
+        let (until, orders) = match self.separation(u) {
+            Some(path) => {
+                let (text, orders) = self.path_text(&path);
+                (Some(text), orders)
+            }
+            None => (None, Vec::new()),
+        };
+        let (_, a, b) = self.nodes[u];
         Waiting {
             other: other.to_string(),
             state: part.describe(obs),
-            until: self.separation(u),
+            until,
+            orders_outside_control: orders,
             control_waits_for,
+            silent: SilentPair {
+                state: self.compiled.graph[i].state,
+                readings: self.compiled.graph[i].readings.clone(),
+                fault: a,
+                other: b,
+            },
         }
     }
 
-    /// The first observation, breadth first from pair `u` along observations
-    /// that fit both, after which only one of the two hypotheses is left.
-    fn separation(&self, u: usize) -> Option<String> {
+    /// The shortest observations, breadth first from pair `u` along
+    /// observations that fit both, after whose last only one of the two
+    /// hypotheses is left: (node, compiled edge) steps.
+    fn separation(&self, u: usize) -> Option<Vec<(NodeIndex, EdgeIndex)>> {
         let graph = &self.compiled.graph;
-        let mut seen = vec![false; self.adj.len()];
+        let mut parent: HashMap<usize, (usize, NodeIndex, EdgeIndex)> = HashMap::new();
         let mut queue = std::collections::VecDeque::from([u]);
-        seen[u] = true;
         let mut visited = 0;
         while let Some(w) = queue.pop_front() {
             visited += 1;
@@ -428,30 +544,80 @@ impl PairContext<'_> {
             let hyps = &self.engine.state(graph[j].state).hyps;
             let pa = hyps.iter().position(|h| *h == a)?;
             let pb = hyps.iter().position(|h| *h == b)?;
-            for e in graph.edges(j) {
-                let target = &self.engine.state(graph[e.target()].state).hyps;
-                let alive_a = self
-                    .successors
-                    .of(e.id(), pa)
-                    .iter()
-                    .any(|&x| target[x as usize].mode == self.fault);
-                let alive_b = self
-                    .successors
-                    .of(e.id(), pb)
-                    .iter()
-                    .any(|&y| target[y as usize].mode != self.fault);
-                if alive_a != alive_b {
-                    return Some(self.observation(j, e.id()));
+            let acts = self.engine.part.actuator_mask();
+            let orders = |e: EdgeIndex| match graph[e] {
+                Trigger::Scan(ch) => (ch & acts).count_ones(),
+                Trigger::Time { .. } => 0,
+            };
+            let separating = graph
+                .edges(j)
+                .filter(|e| {
+                    let target = &self.engine.state(graph[e.target()].state).hyps;
+                    let alive_a = self
+                        .successors
+                        .of(e.id(), pa)
+                        .iter()
+                        .any(|&x| target[x as usize].mode == self.fault);
+                    let alive_b = self
+                        .successors
+                        .of(e.id(), pb)
+                        .iter()
+                        .any(|&y| target[y as usize].mode != self.fault);
+                    alive_a != alive_b
+                })
+                // The plainest: fewest orders, then the earliest explored.
+                .min_by_key(|e| (orders(e.id()), e.id()));
+            if let Some(e) = separating {
+                {
+                    let mut path = vec![(j, e.id())];
+                    let mut x = w;
+                    while let Some(&(p, node, edge)) = parent.get(&x) {
+                        path.push((node, edge));
+                        x = p;
+                    }
+                    path.reverse();
+                    return Some(path);
                 }
             }
-            for &(v, _, _) in self.adj.out(w) {
-                if !seen[v] {
-                    seen[v] = true;
+            for &(v, _, e) in self.adj.out(w) {
+                if v != u && !parent.contains_key(&v) {
+                    parent.insert(v, (w, j, e));
                     queue.push_back(v);
                 }
             }
         }
         None
+    }
+
+    /// Observations in words, joined by arrows; and the orders among them that
+    /// the learned control does not give where they are given.
+    fn path_text(&self, path: &[(NodeIndex, EdgeIndex)]) -> (String, Vec<String>) {
+        let part = &self.engine.part;
+        let mut orders = Vec::new();
+        let is_time = |e: EdgeIndex| matches!(self.compiled.graph[e], Trigger::Time { .. });
+        // Of consecutive stretches of silence, the last says it all.
+        let kept: Vec<(NodeIndex, EdgeIndex)> = path
+            .iter()
+            .enumerate()
+            .filter(|&(k, &(_, e))| {
+                !(is_time(e) && path.get(k + 1).is_some_and(|&(_, n)| is_time(n)))
+            })
+            .map(|(_, &step)| step)
+            .collect();
+        let words: Vec<String> = kept
+            .iter()
+            .map(|&(node, e)| {
+                let obs = self.engine.state(self.compiled.graph[node].state).obs;
+                if let Trigger::Scan(ch) = self.compiled.graph[e]
+                    && ch & part.actuator_mask() != 0
+                    && !learned_order(part, obs, ch)
+                {
+                    orders.push(part.edges(obs, ch & part.actuator_mask()));
+                }
+                self.observation(node, e)
+            })
+            .collect();
+        (words.join(" → "), orders)
     }
 
     /// An observation of the compiled graph, in words.
@@ -463,7 +629,8 @@ impl PairContext<'_> {
             Trigger::Time { clock, at } => format!(
                 "no event until {} reads {} {}",
                 part.clock_name(*clock),
-                self.unit.format(*at),
+                // Readings sit just past a threshold: the threshold reads best.
+                self.unit.format(at / 1000 * 1000),
                 self.unit.name()
             ),
         }

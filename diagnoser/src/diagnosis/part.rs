@@ -823,15 +823,25 @@ impl PartDiagnoser {
             match self.model_state(h.phys) {
                 Some(s) => {
                     for m in &self.moves[s] {
-                        let visible = m.changed & !dec;
-                        if !m.command
-                            && m.changed & frozen == 0
+                        // The control's reaction to a sensor edge it cannot see
+                        // does not come; the edges themselves still happen, the
+                        // hidden ones with the visible ones (as in `close`).
+                        let sensed = m.changed & !self.act_mask;
+                        let physical = if !m.command {
+                            m.changed
+                        } else if sensed & dec != 0 {
+                            sensed
+                        } else {
+                            continue;
+                        };
+                        let visible = physical & !dec;
+                        if physical & frozen == 0
                             && visible != 0
                             && visible & !rest == 0
                             && self.admits(h, m, readings)
                         {
                             let next = Hypothesis {
-                                phys: h.phys ^ m.changed,
+                                phys: h.phys ^ physical,
                                 ..h
                             };
                             self.explain(next, rest & !visible, after, readings, out);
@@ -845,6 +855,16 @@ impl PartDiagnoser {
                     ..h
                 }),
                 None => {}
+            }
+            // A blocked element holds its state where the normal plant only
+            // passes: the learned moves of that state cannot judge the sensors
+            // it does not drive, which keep whatever moves them (a workpiece
+            // arriving, the next machine).
+            if frozen != 0 && rest & dec == 0 {
+                out.push(Hypothesis {
+                    phys: h.phys ^ rest,
+                    ..h
+                });
             }
         }
         // The fault's own observable effects, one edge at a time.
