@@ -532,6 +532,24 @@ impl PartDiagnoser {
                 .is_none_or(|c| m.lo <= c && c <= m.hi)
     }
 
+    /// Whether `m` cannot follow, in the same scan, the transitions of `h`
+    /// that moved the bits `moved`: its guard reads a clock one of them reset
+    /// and it never came that soon, or `h` is untimed (its clocks cannot tell
+    /// how far apart two timed transitions are, and an element does not cross
+    /// a whole stroke in one scan).
+    fn too_soon(&self, h: Hypothesis, m: &Move, moved: u32) -> bool {
+        if !m.timed || moved == 0 {
+            return false;
+        }
+        if h.has(Hypothesis::UNTIMED) {
+            return true;
+        }
+        let Some(Clock::Edge { bit, rising }) = self.clocks.get(m.clock as usize) else {
+            return false;
+        };
+        m.lo > 0 && moved >> bit & 1 == 1 && (h.phys >> bit & 1 == 1) == *rising
+    }
+
     fn may_have_happened(&self, h: Hypothesis, m: &Move, readings: &Readings) -> bool {
         !m.timed || self.reading(h, m.clock, readings).is_none_or(|c| m.lo <= c)
     }
@@ -770,7 +788,7 @@ impl PartDiagnoser {
                 }
             }
             sensed.clear();
-            self.explain(h, sensors, after, readings, &mut sensed);
+            self.explain(h, sensors, 0, after, readings, &mut sensed);
             for mut r in sensed.drain(..) {
                 if orders != 0 {
                     let mut applied = orders;
@@ -795,10 +813,12 @@ impl PartDiagnoser {
 
     /// Explains the observed sensor edges `rest` from hypothesis `h`: by the
     /// model's transitions (their visible part), or by the fault's own effects.
+    /// `moved`: the bits the scan's earlier transitions changed.
     fn explain(
         &self,
         h: Hypothesis,
         rest: u32,
+        moved: u32,
         after: u32,
         readings: &Readings,
         out: &mut Vec<Hypothesis>,
@@ -816,7 +836,7 @@ impl PartDiagnoser {
                 phys: h.phys ^ free,
                 ..h
             };
-            self.explain(next, rest & !free, after, readings, out);
+            self.explain(next, rest & !free, moved | free, after, readings, out);
         }
         let frozen = self.frozen_bits(h);
         if rest & frozen == 0 {
@@ -839,12 +859,14 @@ impl PartDiagnoser {
                             && visible != 0
                             && visible & !rest == 0
                             && self.admits(h, m, readings)
+                            && !self.too_soon(h, m, moved)
                         {
                             let next = Hypothesis {
                                 phys: h.phys ^ physical,
                                 ..h
                             };
-                            self.explain(next, rest & !visible, after, readings, out);
+                            let moved = moved | physical;
+                            self.explain(next, rest & !visible, moved, after, readings, out);
                         }
                     }
                 }
@@ -900,7 +922,7 @@ impl PartDiagnoser {
                         }
                         _ => continue,
                     };
-                    self.explain(next, next_rest, after, readings, out);
+                    self.explain(next, next_rest, moved, after, readings, out);
                 }
             } else if let ModeKind::Glitch { bit: b, value } = own
                 && b == bit
@@ -911,14 +933,14 @@ impl PartDiagnoser {
                         since: Hypothesis::SEEN,
                         ..h
                     };
-                    self.explain(next, next_rest, after, readings, out);
+                    self.explain(next, next_rest, moved, after, readings, out);
                 } else if h.has(Hypothesis::GLITCH) && shown == real {
                     let next = Hypothesis {
                         flags: h.flags & !Hypothesis::GLITCH,
                         since: 0,
                         ..h
                     };
-                    self.explain(next, next_rest, after, readings, out);
+                    self.explain(next, next_rest, moved, after, readings, out);
                 }
             }
         }
