@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::diagnosability::{check, separate_under_any_order};
 use diagnoser::diagnosis::fusion::Coordinator;
-use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
+use diagnoser::diagnosis::{DiagnoserOptions, Engine, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::log::read_events;
 use diagnoser::model::Model;
 use diagnoser::{Plant, TimeUnit};
@@ -67,16 +67,20 @@ fn shipped_runs_keep_the_true_label_and_never_lower_a_flag() {
     }
 }
 
-#[test]
-fn compiled_turntable_diagnoser_and_its_diagnosability() {
+/// The turntable's diagnoser engine, from the shipped model.
+fn turntable_engine() -> Engine {
     let (plant, model) = setup();
     let d = PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
-    let mut engine = d
-        .engines()
+    d.engines()
         .iter()
         .find(|e| e.part.name == "turntable")
         .expect("turntable")
-        .clone();
+        .clone()
+}
+
+#[test]
+fn compiled_turntable_diagnoser_and_its_diagnosability() {
+    let mut engine = turntable_engine();
     let compiled = Compiled::explore(&mut engine, 2);
     assert!(!compiled.truncated);
     let size = compiled.size();
@@ -114,14 +118,7 @@ fn compiled_turntable_diagnoser_and_its_diagnosability() {
 
 #[test]
 fn a_control_that_waits_for_a_withheld_sensor_hides_what_a_running_plant_shows() {
-    let (plant, model) = setup();
-    let d = PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
-    let mut engine = d
-        .engines()
-        .iter()
-        .find(|e| e.part.name == "turntable")
-        .expect("turntable")
-        .clone();
+    let mut engine = turntable_engine();
     let compiled = Compiled::explore(&mut engine, 2);
     let mut verdicts = check(&mut engine, &compiled, TimeUnit::Ms);
     // Under the learned control nothing tells them apart.

@@ -761,9 +761,35 @@ impl Stats {
                 return None;
             }
         }
+        let (delays, typical_delay) = self.pair_delays(p, 0..4, edges, options)?;
+        if delays.is_empty() {
+            return None;
+        }
+        Some(SensorEvidence {
+            sensor: self.sensors[s],
+            actuator: self.actuators[a],
+            edges,
+            followers,
+            actuator_edges: self.actuator_edges[a],
+            delays,
+            typical_delay,
+        })
+    }
+
+    /// The delays of pair `p` for the (actuator direction × 2 + sensor
+    /// direction) indices `ks`, leaving out those too rare to judge (criterion
+    /// 2.), with their typical delay (median averaged over them, weighted by
+    /// count); `None` when one is spread.
+    fn pair_delays(
+        &self,
+        p: usize,
+        ks: impl IntoIterator<Item = usize>,
+        edges: [u64; 2],
+        options: &SuggestOptions,
+    ) -> Option<(Vec<DelayStats>, Time)> {
         let mut delays = Vec::new();
         let (mut weighted, mut weight) = (0f64, 0u64);
-        for k in 0..4 {
+        for k in ks {
             let (a_rising, d) = (k / 2 == 1, k % 2);
             let count = self.counts[p * 4 + k];
             let Some(h) = &self.histograms[p * 4 + k] else {
@@ -789,18 +815,12 @@ impl Stats {
                 q95,
             });
         }
-        if weight == 0 {
-            return None;
-        }
-        Some(SensorEvidence {
-            sensor: self.sensors[s],
-            actuator: self.actuators[a],
-            edges,
-            followers,
-            actuator_edges: self.actuator_edges[a],
-            delays,
-            typical_delay: (weighted / weight as f64).round() as Time,
-        })
+        let typical = if weight == 0 {
+            0
+        } else {
+            (weighted / weight as f64).round() as Time
+        };
+        Some((delays, typical))
     }
 
     /// If `s`'s edges in direction `d` follow `a`'s (criteria 1. and 2. of
@@ -812,26 +832,8 @@ impl Stats {
         if edges == 0 || (self.followers[p][d] as f64) < options.follower_share * edges as f64 {
             return None;
         }
-        let (mut weighted, mut weight) = (0f64, 0u64);
-        for a_rising in 0..2 {
-            let k = p * 4 + a_rising * 2 + d;
-            let count = self.counts[k];
-            let Some(h) = &self.histograms[k] else {
-                continue;
-            };
-            if count == 0 || (count as f64) < options.min_pair_share * edges as f64 {
-                continue;
-            }
-            let q = |x| self.bins.quantile(h, count, x);
-            let (q05, q50, q95) = (q(0.05), q(0.5), q(0.95));
-            let allowed = (options.spread_ratio * q50 as f64).max(options.min_spread as f64);
-            if (q95 - q05) as f64 > allowed {
-                return None;
-            }
-            weighted += q50 as f64 * count as f64;
-            weight += count;
-        }
-        (weight > 0).then(|| (weighted / weight as f64).round() as Time)
+        let (delays, typical) = self.pair_delays(p, [d, 2 + d], self.edges[s], options)?;
+        (!delays.is_empty()).then_some(typical)
     }
 
     /// Per direction (falling, rising), the actuator whose edges `s`'s edges
