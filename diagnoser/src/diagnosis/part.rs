@@ -21,7 +21,7 @@
 use std::collections::HashMap;
 
 use crate::fault::FaultTemplate;
-use crate::model::PartModel;
+use crate::model::{PartModel, SensorKind};
 use crate::plant::{Part, Plant};
 use crate::{SignalId, Time};
 
@@ -337,6 +337,7 @@ impl PartDiagnoser {
             });
         }
         let expected = expectations(model, &motion_state, &moves);
+        borrow_moves(&vectors, &mut moves, loose_mask(model, &bit_of) & !inputs);
 
         let mut modes = vec![Mode {
             label: "N".to_string(),
@@ -1048,6 +1049,42 @@ fn input_mask(
         .into_iter()
         .filter_map(bit_of)
         .fold(0, |m, b| m | 1 << b)
+}
+
+/// Bits of the sensors that learning found moved from outside the part, in
+/// one direction or both (`partly_input`, `input`), and that are not inputs:
+/// what the rest of the part does cannot depend on their values.
+fn loose_mask(model: &PartModel, bit_of: &impl Fn(&str) -> Option<u8>) -> u32 {
+    model
+        .sensor_classes
+        .iter()
+        .filter(|c| matches!(c.class, SensorKind::PartlyInput | SensorKind::Input))
+        .filter_map(|c| bit_of(&c.sensor))
+        .fold(0, |m, b| m | 1 << b)
+}
+
+/// Lends each motion state the moves of the states that differ from it only in
+/// `loose` bits, when the moves leave those bits alone: a workpiece arriving at the entry
+/// of a conveyor does not change how the one ahead of it reaches the end stop,
+/// even if the learning logs never showed both at once. Lent moves are untimed
+/// (their clocks were read in another state) and add no deadline.
+fn borrow_moves(vectors: &[u32], moves: &mut [Vec<Move>], loose: u32) {
+    if loose == 0 {
+        return;
+    }
+    let own: Vec<Vec<Move>> = moves.to_vec();
+    for (s, &v) in vectors.iter().enumerate() {
+        for (o, &w) in vectors.iter().enumerate() {
+            if o == s || (v ^ w) & !loose != 0 {
+                continue;
+            }
+            for m in own[o].iter().filter(|m| m.changed & (v ^ w) == 0) {
+                if !moves[s].iter().any(|n| n.changed == m.changed) {
+                    moves[s].push(Move { timed: false, ..*m });
+                }
+            }
+        }
+    }
 }
 
 /// Per motion state, the indices in its moves of the events that must come.
