@@ -242,28 +242,42 @@ fn unexplained_deviations_are_consequences_of_a_modelled_fault() {
 
 /// The swivel arm of `fixtures/diagnosis/arm.toml`, its hand-made model, and the
 /// final labels of a replay of `(t ms, signal, value)` events from the state
-/// `B1=1`, ending at `end` ms. `plant_text` edits the plant file.
+/// `B1=1`, ending at `end` ms. `edit` edits the plant file.
 fn arm_labels(
     edit: impl Fn(String) -> String,
     events: &[(i64, &str, bool)],
     end: i64,
 ) -> Vec<String> {
-    let text = std::fs::read_to_string(repo("diagnoser/tests/fixtures/diagnosis/arm.toml"))
-        .expect("plant");
-    let plant = Plant::parse(&edit(text), Path::new("arm.toml")).expect("plant parses");
-    let model = Model::from_path(&repo("diagnoser/tests/fixtures/diagnosis/arm-model.json"))
-        .expect("model");
+    fixture_labels("arm", &edit, &["B1"], events, end)
+}
+
+/// The final labels of fixture `name`'s part of the same name (plant
+/// `fixtures/diagnosis/NAME.toml`, model `NAME-model.json`) on a replay of
+/// `(t ms, signal, value)` events from the state where the signals `on` are 1,
+/// ending at `end` ms.
+fn fixture_labels(
+    name: &str,
+    edit: &dyn Fn(String) -> String,
+    on: &[&str],
+    events: &[(i64, &str, bool)],
+    end: i64,
+) -> Vec<String> {
+    let dir = "diagnoser/tests/fixtures/diagnosis";
+    let text = std::fs::read_to_string(repo(&format!("{dir}/{name}.toml"))).expect("plant");
+    let plant = Plant::parse(&edit(text), Path::new(name)).expect("plant parses");
+    let model = Model::from_path(&repo(&format!("{dir}/{name}-model.json"))).expect("model");
     let mut d =
         PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
     let ms = diagnoser::MS;
-    let initial: Vec<bool> = ["Y1", "Y2", "B1", "B2", "B3"]
+    let initial: Vec<bool> = plant
+        .signals
         .iter()
-        .map(|&s| s == "B1")
+        .map(|(_, s)| on.contains(&s.name.as_str()))
         .collect();
     let mut verdicts = Vec::new();
     d.start(0, &initial);
-    for &(t, name, value) in events {
-        let signal = plant.signals.id(name).expect("signal");
+    for &(t, signal, value) in events {
+        let signal = plant.signals.id(signal).expect("signal");
         d.push(
             diagnoser::Event {
                 t: t * ms,
@@ -277,8 +291,48 @@ fn arm_labels(
     verdicts
         .iter()
         .rev()
-        .find(|v| v.part == "arm")
+        .find(|v| v.part == name)
         .map_or_else(|| vec!["N".to_string()], |v| v.labels.clone())
+}
+
+#[test]
+fn a_valve_stuck_on_keeps_its_label_when_the_control_releases_it_on_arrival() {
+    // The table turns to the work position; the control releases Y102 in the
+    // scan B104 rises, but the valve stays on. Ordered back, the table does
+    // not leave B104: both valves push.
+    let events = [
+        (1000, "Y102", true),
+        (1060, "B103", false),
+        (3860, "Y102", false),
+        (3860, "B104", true),
+        (9000, "Y103", true),
+    ];
+    let labels = fixture_labels("table", &|t| t, &["B103"], &events, 12_000);
+    assert!(
+        labels.contains(&"Y102.actuator_stuck1".to_string()),
+        "{labels:?}"
+    );
+    assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+}
+
+#[test]
+fn a_valve_stuck_on_turns_the_table_to_where_the_control_would_have_released_it() {
+    // Y103 sticks on while the table rests at the work position: the table
+    // turns to the loading position unordered, and the control has no order to
+    // withdraw when B103 rises.
+    let events = [
+        (1000, "Y102", true),
+        (1060, "B103", false),
+        (3860, "Y102", false),
+        (3860, "B104", true),
+        (6000, "B104", false),
+        (9200, "B103", true),
+    ];
+    let labels = fixture_labels("table", &|t| t, &["B103"], &events, 10_000);
+    assert!(
+        labels.contains(&"Y103.actuator_stuck1".to_string()),
+        "{labels:?}"
+    );
 }
 
 /// Vacuum on, swivel to the conveyor: the arm is at B2 with the vacuum on at 720 ms.

@@ -48,16 +48,20 @@ pub fn alarms(verdicts: &[Verdict]) -> Vec<Alarm> {
     for v in verdicts {
         let before = was_normal.insert(v.part.as_str(), v.verdict == VerdictKind::Normal);
         if v.verdict != VerdictKind::Normal && before.unwrap_or(true) {
-            out.push(Alarm {
-                t_ms: ms(v.t),
-                part: v.part.clone(),
-                verdict: v.verdict.name().to_string(),
-                labels: v.labels.clone(),
-                reason: v.reason.clone(),
-            });
+            out.push(alarm(v));
         }
     }
     out
+}
+
+fn alarm(v: &Verdict) -> Alarm {
+    Alarm {
+        t_ms: ms(v.t),
+        part: v.part.clone(),
+        verdict: v.verdict.name().to_string(),
+        labels: v.labels.clone(),
+        reason: v.reason.clone(),
+    }
 }
 
 /// Nanoseconds as milliseconds.
@@ -106,6 +110,9 @@ pub struct Judgement {
     pub isolated: bool,
     /// Other parts that left normal from the onset on.
     pub other_parts: Vec<String>,
+    /// The first verdict of the part, from the onset on, that lost the true
+    /// label (why the run is unsound).
+    pub lost: Option<Alarm>,
 }
 
 /// Judges the verdicts of a run with fault `label` of part `part` from `onset`.
@@ -140,6 +147,10 @@ pub fn judge(verdicts: &[Verdict], part: &str, label: &str, onset: Time) -> Judg
         final_labels: last.map_or_else(|| vec!["N".to_string()], |v| v.labels.clone()),
         isolated: last.is_some_and(|v| v.verdict == VerdictKind::Certain && v.labels == [label]),
         other_parts,
+        lost: faulty
+            .iter()
+            .find(|v| !v.labels.iter().any(|l| l == label))
+            .map(|v| alarm(v)),
     }
 }
 
@@ -185,6 +196,7 @@ mod tests {
         assert!(!j.preempted);
         assert!(judge(&vs, "table", "F3", 50 * diagnoser::MS).preempted);
         assert_eq!(j.sound, Some(false));
+        assert_eq!(j.lost.as_ref().map(|a| a.t_ms), Some(100.0));
         assert!(!j.isolated);
         assert_eq!(j.final_verdict, "ambiguous");
         // The table's verdict came before the onset: not counted after it.

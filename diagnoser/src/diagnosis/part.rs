@@ -775,16 +775,26 @@ impl PartDiagnoser {
             // edges in one scan.
             if orders != 0
                 && motion & !orders != 0
-                && self.decoupled(h) & changed == 0
+                && self.decoupled(h) & changed & !self.act_mask == 0
                 && self.frozen_bits(h) & changed == 0
                 && let Some(s) = self.model_state(h.phys)
             {
                 for m in &self.moves[s] {
                     if m.changed == motion && self.admits(h, m, readings) {
-                        out.push(Hypothesis {
+                        let mut r = Hypothesis {
                             phys: h.phys ^ changed,
                             ..h
-                        });
+                        };
+                        if let ModeKind::ActuatorStuck { bit, .. } =
+                            self.modes[h.mode as usize].kind
+                            && orders >> bit & 1 == 1
+                        {
+                            // The sensor edges happened; the order they
+                            // prompted did not reach the plant.
+                            r.phys ^= 1 << bit;
+                            r.flags |= Hypothesis::UNTIMED;
+                        }
+                        out.push(r);
                     }
                 }
             }
@@ -846,11 +856,13 @@ impl PartDiagnoser {
                     for m in &self.moves[s] {
                         // The control's reaction to a sensor edge it cannot see
                         // does not come; the edges themselves still happen, the
-                        // hidden ones with the visible ones (as in `close`).
+                        // hidden ones with the visible ones (as in `close`). Nor
+                        // does a reaction the control already shows, on an
+                        // actuator stuck where the reaction would put it.
                         let sensed = m.changed & !self.act_mask;
                         let physical = if !m.command {
                             m.changed
-                        } else if sensed & dec != 0 {
+                        } else if sensed & dec != 0 || self.reaction_shown(h, m, after) {
                             sensed
                         } else {
                             continue;
@@ -945,6 +957,19 @@ impl PartDiagnoser {
                 }
             }
         }
+    }
+
+    /// Whether the control's reaction `m` orders only the actuator that `h`
+    /// holds stuck, and the observed order `after` already is what the
+    /// reaction would give: the control has nothing to order, and the sensor
+    /// edges it reacts to still happen (a valve stuck on turns a table to the
+    /// end where the control would have released it).
+    fn reaction_shown(&self, h: Hypothesis, m: &Move, after: u32) -> bool {
+        let ModeKind::ActuatorStuck { bit, .. } = self.modes[h.mode as usize].kind else {
+            return false;
+        };
+        let orders = m.changed & self.act_mask;
+        orders == 1 << bit && (after ^ h.phys ^ m.changed) >> bit & 1 == 0
     }
 
     /// The initial hypotheses for the observed state `obs`.
