@@ -316,6 +316,47 @@ fn a_valve_stuck_on_keeps_its_label_when_the_control_releases_it_on_arrival() {
 }
 
 #[test]
+fn a_stuck_switch_keeps_its_label_when_the_control_it_misleads_gives_a_pulse() {
+    // B103 (loading position) sticks at 1 while the table turns there: the
+    // control stops the table half-way, turns it back to B104, and next time
+    // releases Y103 one scan after giving it, since it sees the table at B103
+    // already. The table had started: B104 falls 70 ms after the order, inside
+    // its learned window, but 60 ms after the release, where the table rests.
+    // (Times from generated plant 1, `B103.stuck1` at 562 681 ms.)
+    let events = [
+        (540_850, "Y102", true),
+        (540_910, "B103", false),
+        (543_770, "Y102", false),
+        (543_770, "B104", true),
+        (559_940, "Y103", true),
+        (560_010, "B104", false),
+        (562_690, "Y103", false),
+        (562_690, "B103", true),
+        (563_850, "Y102", true),
+        (566_810, "Y102", false),
+        (566_810, "B104", true),
+        (588_760, "Y103", true),
+        (588_770, "Y103", false),
+        (588_830, "B104", false),
+        // Back to B104 from part-way, and the same pulse again.
+        (589_930, "Y102", true),
+        (590_900, "Y102", false),
+        (590_900, "B104", true),
+        (594_050, "Y103", true),
+        (594_060, "Y103", false),
+        (594_120, "B104", false),
+    ];
+    let labels = fixture_labels("table", &|t| t, &["B103"], &events, 600_000);
+    assert!(labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+    // Had the table left B104 later than the order's learned window allows,
+    // the stuck switch would not explain it.
+    let mut late = events;
+    late[13].0 = 588_960;
+    let labels = fixture_labels("table", &|t| t, &["B103"], &late, 600_000);
+    assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+}
+
+#[test]
 fn a_valve_stuck_on_turns_the_table_to_where_the_control_would_have_released_it() {
     // Y103 sticks on while the table rests at the work position: the table
     // turns to the loading position unordered, and the control has no order to

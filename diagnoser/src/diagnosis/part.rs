@@ -127,7 +127,7 @@ pub struct Mode {
 pub struct Hypothesis {
     /// Index in [`PartDiagnoser::modes`] (0 is normal).
     pub mode: u16,
-    /// [`Hypothesis::GLITCH`] and [`Hypothesis::UNTIMED`].
+    /// [`Hypothesis::GLITCH`], [`Hypothesis::UNTIMED`] and [`Hypothesis::STARTED`].
     pub flags: u8,
     /// While a glitch shows: [`Hypothesis::SEEN`] if it began with an observed
     /// edge, else the model transition it hid as it began (its deadline counts
@@ -144,6 +144,11 @@ impl Hypothesis {
     /// actuator moved the part at an unobserved moment), so guards and deadlines
     /// are not enforced for this hypothesis.
     pub const UNTIMED: u8 = 2;
+    /// The control has just given an order the model never saw it give in
+    /// this physical state (a fault misled it, e.g. a pulse withdrawn one scan
+    /// after it began): the motion that order started may still show its first
+    /// edge. Holds until the part's next scan.
+    pub const STARTED: u8 = 4;
 
     /// [`Hypothesis::since`] of a glitch that began with an observed edge.
     pub const SEEN: u16 = u16::MAX;
@@ -783,6 +788,7 @@ impl PartDiagnoser {
                     if m.changed == motion && self.admits(h, m, readings) {
                         let mut r = Hypothesis {
                             phys: h.phys ^ changed,
+                            flags: h.flags & !Hypothesis::STARTED,
                             ..h
                         };
                         if let ModeKind::ActuatorStuck { bit, .. } =
@@ -801,6 +807,7 @@ impl PartDiagnoser {
             sensed.clear();
             self.explain(h, sensors, 0, after, readings, &mut sensed);
             for mut r in sensed.drain(..) {
+                r.flags &= !Hypothesis::STARTED;
                 if orders != 0 {
                     let mut applied = orders;
                     if let ModeKind::ActuatorStuck { bit, .. } = self.modes[r.mode as usize].kind
@@ -810,6 +817,13 @@ impl PartDiagnoser {
                         // longer dates the physical state.
                         applied &= !(1 << bit);
                         r.flags |= Hypothesis::UNTIMED;
+                    }
+                    if r.mode != 0
+                        && !self.frozen(r)
+                        && applied != 0
+                        && !self.learned_order(r.phys, applied)
+                    {
+                        r.flags |= Hypothesis::STARTED;
                     }
                     r.phys ^= applied;
                 }
@@ -891,6 +905,9 @@ impl PartDiagnoser {
                 }),
                 None => {}
             }
+            if h.has(Hypothesis::STARTED) {
+                self.started_motion(h, rest, moved, after, readings, out);
+            }
             // A blocked element holds its state where the normal plant only
             // passes: the learned moves of that state cannot judge the sensors
             // it does not drive, which keep whatever moves them (a workpiece
@@ -954,6 +971,72 @@ impl PartDiagnoser {
                         ..h
                     };
                     self.explain(next, next_rest, moved, after, readings, out);
+                }
+            }
+        }
+    }
+
+    /// Whether the model saw the control give `orders` in the physical state `phys`.
+    fn learned_order(&self, phys: u32, orders: u32) -> bool {
+        self.model_state(phys).is_some_and(|s| {
+            self.moves[s]
+                .iter()
+                .any(|m| m.command && m.changed & self.act_mask == orders)
+        })
+    }
+
+    /// The first edge of a motion whose order the control withdrew in a state
+    /// where it never does (see [`Hypothesis::STARTED`]): the element had
+    /// started, and the edge the order leads to first still comes, in its
+    /// learned window from the order (any time, if `h` is untimed already).
+    /// `h` is back in the state the order was given from; what follows is the
+    /// model's no more, so it goes untimed.
+    fn started_motion(
+        &self,
+        h: Hypothesis,
+        rest: u32,
+        moved: u32,
+        after: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        let dec = self.decoupled(h);
+        let frozen = self.frozen_bits(h);
+        for a in (0..self.names.len() as u8).filter(|&a| self.act_mask >> a & 1 == 1) {
+            let given = h.phys ^ 1 << a;
+            let Some(s) = self.model_state(given) else {
+                continue;
+            };
+            if !self.learned_order(h.phys, 1 << a) {
+                continue;
+            }
+            let order = Clock::Edge {
+                bit: a,
+                rising: given >> a & 1 == 1,
+            };
+            for m in &self.moves[s] {
+                let visible = m.changed & !dec;
+                if !m.command
+                    && m.timed
+                    && self.clocks.get(m.clock as usize) == Some(&order)
+                    && m.changed & frozen == 0
+                    && visible != 0
+                    && visible & !rest == 0
+                    && self.admits(h, m, readings)
+                {
+                    let next = Hypothesis {
+                        flags: (h.flags | Hypothesis::UNTIMED) & !Hypothesis::STARTED,
+                        phys: h.phys ^ m.changed,
+                        ..h
+                    };
+                    self.explain(
+                        next,
+                        rest & !visible,
+                        moved | m.changed,
+                        after,
+                        readings,
+                        out,
+                    );
                 }
             }
         }
