@@ -138,19 +138,19 @@ pub fn judge(verdicts: &[Verdict], part: &str, label: &str, onset: Time) -> Judg
         .collect();
     other_parts.sort();
     other_parts.dedup();
+    let lost = faulty
+        .iter()
+        .find(|v| !v.labels.iter().any(|l| l == label))
+        .map(|v| alarm(v));
     Judgement {
         preempted,
         detected_ms: faulty.first().map(|v| ms(v.t)),
-        sound: (!faulty.is_empty())
-            .then(|| faulty.iter().all(|v| v.labels.iter().any(|l| l == label))),
+        sound: (!faulty.is_empty()).then_some(lost.is_none()),
         final_verdict: last.map_or("normal", |v| v.verdict.name()).to_string(),
         final_labels: last.map_or_else(|| vec!["N".to_string()], |v| v.labels.clone()),
         isolated: last.is_some_and(|v| v.verdict == VerdictKind::Certain && v.labels == [label]),
         other_parts,
-        lost: faulty
-            .iter()
-            .find(|v| !v.labels.iter().any(|l| l == label))
-            .map(|v| alarm(v)),
+        lost,
     }
 }
 

@@ -786,20 +786,14 @@ impl PartDiagnoser {
             {
                 for m in &self.moves[s] {
                     if m.changed == motion && self.admits(h, m, readings) {
+                        // The sensor edges happen even where the order they
+                        // prompted does not reach the plant.
                         let mut r = Hypothesis {
-                            phys: h.phys ^ changed,
+                            phys: h.phys ^ (changed & !orders),
                             flags: h.flags & !Hypothesis::STARTED,
                             ..h
                         };
-                        if let ModeKind::ActuatorStuck { bit, .. } =
-                            self.modes[h.mode as usize].kind
-                            && orders >> bit & 1 == 1
-                        {
-                            // The sensor edges happened; the order they
-                            // prompted did not reach the plant.
-                            r.phys ^= 1 << bit;
-                            r.flags |= Hypothesis::UNTIMED;
-                        }
+                        r.phys ^= self.apply_orders(&mut r, orders);
                         out.push(r);
                     }
                 }
@@ -809,15 +803,7 @@ impl PartDiagnoser {
             for mut r in sensed.drain(..) {
                 r.flags &= !Hypothesis::STARTED;
                 if orders != 0 {
-                    let mut applied = orders;
-                    if let ModeKind::ActuatorStuck { bit, .. } = self.modes[r.mode as usize].kind
-                        && orders >> bit & 1 == 1
-                    {
-                        // The order did not reach the plant: the command clock no
-                        // longer dates the physical state.
-                        applied &= !(1 << bit);
-                        r.flags |= Hypothesis::UNTIMED;
-                    }
+                    let applied = self.apply_orders(&mut r, orders);
                     if r.mode != 0
                         && !self.frozen(r)
                         && applied != 0
@@ -881,10 +867,7 @@ impl PartDiagnoser {
                         } else {
                             continue;
                         };
-                        let visible = physical & !dec;
-                        if physical & frozen == 0
-                            && visible != 0
-                            && visible & !rest == 0
+                        if let Some(visible) = self.shown_part(h, physical, rest)
                             && self.admits(h, m, readings)
                             && !self.too_soon(h, m, moved)
                         {
@@ -976,6 +959,29 @@ impl PartDiagnoser {
         }
     }
 
+    /// The orders among `orders` that reach the plant under `r`: all but its
+    /// stuck actuator's. An ignored order leaves `r` untimed, since the command
+    /// clock no longer dates its physical state.
+    fn apply_orders(&self, r: &mut Hypothesis, orders: u32) -> u32 {
+        let ignored = match self.modes[r.mode as usize].kind {
+            ModeKind::ActuatorStuck { bit, .. } => orders & 1 << bit,
+            _ => 0,
+        };
+        if ignored != 0 {
+            r.flags |= Hypothesis::UNTIMED;
+        }
+        orders & !ignored
+    }
+
+    /// The part of the edges `physical` that shows, if they can explain some of
+    /// the observed edges `rest` under `h`: none of them frozen, at least one
+    /// visible, and no visible one outside `rest`.
+    fn shown_part(&self, h: Hypothesis, physical: u32, rest: u32) -> Option<u32> {
+        let visible = physical & !self.decoupled(h);
+        (physical & self.frozen_bits(h) == 0 && visible != 0 && visible & !rest == 0)
+            .then_some(visible)
+    }
+
     /// Whether the model saw the control give `orders` in the physical state `phys`.
     fn learned_order(&self, phys: u32, orders: u32) -> bool {
         self.model_state(phys).is_some_and(|s| {
@@ -1000,8 +1006,6 @@ impl PartDiagnoser {
         readings: &Readings,
         out: &mut Vec<Hypothesis>,
     ) {
-        let dec = self.decoupled(h);
-        let frozen = self.frozen_bits(h);
         for a in (0..self.names.len() as u8).filter(|&a| self.act_mask >> a & 1 == 1) {
             let given = h.phys ^ 1 << a;
             let Some(s) = self.model_state(given) else {
@@ -1015,13 +1019,10 @@ impl PartDiagnoser {
                 rising: given >> a & 1 == 1,
             };
             for m in &self.moves[s] {
-                let visible = m.changed & !dec;
                 if !m.command
                     && m.timed
                     && self.clocks.get(m.clock as usize) == Some(&order)
-                    && m.changed & frozen == 0
-                    && visible != 0
-                    && visible & !rest == 0
+                    && let Some(visible) = self.shown_part(h, m.changed, rest)
                     && self.admits(h, m, readings)
                 {
                     let next = Hypothesis {
