@@ -76,6 +76,7 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
         &model,
         &DiagnoserOptions {
             glitch_max: args.glitch_max,
+            ..DiagnoserOptions::default()
         },
     )
     .map_err(|e| bad(format!("{}: {e}", model_path.display())))?;

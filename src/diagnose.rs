@@ -58,6 +58,7 @@ impl ReplayArgs {
     pub fn options(&self) -> DiagnoserOptions {
         DiagnoserOptions {
             glitch_max: self.glitch_max,
+            ..DiagnoserOptions::default()
         }
     }
 

@@ -1,8 +1,13 @@
 //! The flags a PLC's filter reads, as the diagnosers' verdicts set them:
 //! `def_<partition>` once a part is certain of a fault there (never lowered),
 //! `suspect_<partition>` while some part's labels touch it.
+//!
+//! A `def_` flag switches a sensor to its estimate for good, so a board may
+//! ask for a confirmation time: the flag goes up only once the verdict that
+//! raised it has held that long in event time ([`FlagBoard::confirm`]).
 
 use diagnoser::Plant;
+use diagnoser::Time;
 use diagnoser::diagnosis::Verdict;
 use diagnoser::diagnosis::fusion::PLANT_VIEW;
 
@@ -15,9 +20,36 @@ pub struct FlagBoard {
     raised: Vec<String>,
     /// `suspect_` flags up now.
     suspects: Vec<String>,
+    /// How long a `def_` flag's verdict must hold before the flag goes up.
+    confirmation: Time,
+    /// `def_` flags waiting for their confirmation.
+    waiting: Vec<Candidate>,
+}
+
+/// A `def_` flag a verdict raised, not yet confirmed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Candidate {
+    /// The flag.
+    pub flag: String,
+    /// The part whose verdict raised it.
+    pub part: String,
+    /// When that verdict came.
+    pub since: Time,
+    /// The verdict's labels and reason, for the log of the write.
+    pub evidence: String,
 }
 
 impl FlagBoard {
+    /// A board whose `def_` flags go up only once their verdict has held for
+    /// `confirmation` (see [`FlagBoard::confirm`]); a zero confirmation raises
+    /// them with the verdict, like [`FlagBoard::default`].
+    pub fn with_confirmation(confirmation: Time) -> FlagBoard {
+        FlagBoard {
+            confirmation: confirmation.max(0),
+            ..FlagBoard::default()
+        }
+    }
+
     /// Takes in one verdict. The plant view repeats the parts' verdicts and is
     /// skipped. Returns whether a flag went up or down.
     pub fn update(&mut self, v: &Verdict) -> bool {
@@ -33,9 +65,22 @@ impl FlagBoard {
                 .parts
                 .push((v.part.clone(), v.flags.clone(), v.suspects.clone())),
         }
+        // A verdict that no longer holds a waiting flag withdraws it.
+        self.waiting
+            .retain(|c| c.part != v.part || v.flags.contains(&c.flag));
         let mut changed = false;
         for f in &v.flags {
-            if !self.raised.contains(f) {
+            if self.raised.contains(f) || self.waiting.iter().any(|c| &c.flag == f) {
+                continue;
+            }
+            if self.confirmation > 0 {
+                self.waiting.push(Candidate {
+                    flag: f.clone(),
+                    part: v.part.clone(),
+                    since: v.t,
+                    evidence: format!("{} {}: {}", v.part, v.labels.join(" "), v.reason),
+                });
+            } else {
                 self.raised.push(f.clone());
                 changed = true;
             }
@@ -55,6 +100,22 @@ impl FlagBoard {
             now.len() != self.suspects.len() || now.iter().any(|s| !self.suspects.contains(s));
         self.suspects = now;
         changed
+    }
+
+    /// Raises the waiting `def_` flags whose verdict has held for the
+    /// confirmation time by `upto` (the event time up to which the source has
+    /// shown everything), and returns them.
+    pub fn confirm(&mut self, upto: Time) -> Vec<Candidate> {
+        let due = |c: &Candidate| c.since.saturating_add(self.confirmation) <= upto;
+        let (now, later): (Vec<Candidate>, Vec<Candidate>) =
+            self.waiting.drain(..).partition(|c| due(c));
+        self.waiting = later;
+        for c in &now {
+            if !self.raised.contains(&c.flag) {
+                self.raised.push(c.flag.clone());
+            }
+        }
+        now
     }
 
     /// Counts `flag` (a `def_` flag found up on the PLC) as raised.
@@ -129,5 +190,37 @@ mod tests {
             .map(|(f, _)| f)
             .collect();
         assert_eq!(up, ["def_C4", "def_P"]);
+    }
+
+    fn at(t: Time, part: &str, flags: &[&str]) -> Verdict {
+        Verdict {
+            t,
+            ..verdict(part, flags, &[])
+        }
+    }
+
+    #[test]
+    fn a_def_flag_waits_until_its_verdict_has_held_for_the_confirmation() {
+        let mut board = FlagBoard::with_confirmation(10);
+        assert!(!board.update(&at(100, "turntable", &["def_C4"])));
+        assert!(board.raised().is_empty());
+        assert!(board.confirm(109).is_empty());
+        // Withdrawn before it held: never raised.
+        board.update(&at(105, "turntable", &[]));
+        assert!(board.confirm(1000).is_empty());
+        // Another part's verdict does not withdraw it.
+        board.update(&at(200, "turntable", &["def_C4"]));
+        board.update(&at(205, "rollers", &[]));
+        let up = board.confirm(210);
+        assert_eq!(up.len(), 1);
+        assert_eq!((up[0].flag.as_str(), up[0].since), ("def_C4", 200));
+        assert_eq!(board.raised(), ["def_C4"]);
+        // Raised for good: a later verdict without it does not lower it.
+        board.update(&at(300, "turntable", &[]));
+        assert_eq!(board.raised(), ["def_C4"]);
+        // Without a confirmation time, the flag goes up with its verdict.
+        let mut now = FlagBoard::default();
+        assert!(now.update(&at(1, "turntable", &["def_C4"])));
+        assert_eq!(now.raised(), ["def_C4"]);
     }
 }

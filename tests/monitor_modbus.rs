@@ -13,6 +13,9 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
+mod support;
+use support::netfault::{Faults, Proxy};
+
 fn path(rel: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join(rel)
@@ -399,4 +402,223 @@ fn a_fresh_monitor_keeps_the_flags_it_finds_raised() {
         "def_C4 was written down: {:?}",
         plc.seen
     );
+}
+
+/// A plant file and a model learned from one fault-free hour of the virtual
+/// PLC's control, once for the tests that need them.
+fn learned_virtual_plc() -> &'static (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) {
+    static LEARNED: std::sync::OnceLock<(
+        tempfile::TempDir,
+        std::path::PathBuf,
+        std::path::PathBuf,
+    )> = std::sync::OnceLock::new();
+    LEARNED.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let run = dir.path().join("run");
+        let model = dir.path().join("model.json");
+        let bin = env!("CARGO_BIN_EXE_gardefou");
+        let ok = |out: std::process::Output| {
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        };
+        ok(Command::new(bin)
+            .args(["simulate", "--control", "constraints", "--duration", "1h"])
+            .args(["--seed", "7", "--out"])
+            .arg(&run)
+            .output()
+            .expect("simulate runs"));
+        ok(Command::new(bin)
+            .args(["learn", "--margin", "50ms", "--plant"])
+            .arg(run.join("plant.toml"))
+            .arg(run.join("events.csv"))
+            .arg("-o")
+            .arg(&model)
+            .output()
+            .expect("learn runs"));
+        let plant = run.join("plant.toml");
+        (dir, plant, model)
+    })
+}
+
+/// The virtual PLC at 4× for `duration`, with `fault` if any; its port.
+fn virtual_plc(model: &Path, duration: &str, fault: Option<&str>) -> (Child, u16) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_gardefou"));
+    cmd.args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
+        .args(["--speed", "4", "--duration", duration])
+        .arg("--model")
+        .arg(model);
+    if let Some(f) = fault {
+        cmd.args(["--fault", f]);
+    }
+    let mut plc = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the virtual PLC starts");
+    let mut err = BufReader::new(plc.stderr.take().expect("stderr"));
+    let mut first = String::new();
+    err.read_line(&mut first).expect("a first line");
+    let port: u16 = first
+        .split("127.0.0.1:")
+        .nth(1)
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no port in: {first}"));
+    // The rest of its stderr is drained, so that it never blocks.
+    std::thread::spawn(move || std::io::copy(&mut err, &mut std::io::sink()));
+    (plc, port)
+}
+
+/// The monitor at 4× on `port` for `duration`.
+fn monitor_at_4x(plant: &Path, model: &Path, port: u16, duration: &str) -> Lines {
+    Lines::spawn(
+        Command::new(env!("CARGO_BIN_EXE_gardefou"))
+            .args(["monitor", "--plant"])
+            .arg(plant)
+            .arg("--model")
+            .arg(model)
+            .args(["--modbus", &format!("127.0.0.1:{port}")])
+            .args(["--speed", "4", "--duration", duration]),
+    )
+}
+
+/// A healthy virtual PLC read through a slow network: 1 % of the replies
+/// delayed by 50–300 ms, then 5 % by up to 1 s, then 5 % by up to 300 ms
+/// overtaken by later ones, with 1 % lost. Late replies delay the watermark,
+/// never a timestamp, and a lost one costs a sample; the monitor joins the
+/// running plant mid-cycle, with its clocks unknown: no verdict leaves normal
+/// and no flag is written. `GARDEFOU_SLOW_NETWORK_SECONDS` sets each run's wall time.
+#[test]
+fn a_slow_network_gives_no_verdict_and_writes_no_flag() {
+    let _serial = serial();
+    let (_dir, plant, model) = learned_virtual_plc();
+    let seconds: u64 = std::env::var("GARDEFOU_SLOW_NETWORK_SECONDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20);
+    let lossy = Faults {
+        in_order: false,
+        drop_share: 0.01,
+        ..Faults::delays(0.05, Duration::ZERO, Duration::from_millis(300), 3)
+    };
+    for (run, faults) in [
+        Faults::delays(
+            0.01,
+            Duration::from_millis(50),
+            Duration::from_millis(300),
+            11,
+        ),
+        Faults::delays(0.05, Duration::ZERO, Duration::from_secs(1), 11),
+        lossy,
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let share = faults.delay_share;
+        let plc_time = format!("{}s", seconds * 4 + 30);
+        let (mut plc, port) = virtual_plc(model, &plc_time, None);
+        // The monitor joins a running plant, in the middle of a cycle.
+        std::thread::sleep(Duration::from_millis(1700 + 900 * run as u64));
+        let proxy = Proxy::start(([127, 0, 0, 1], port).into(), faults);
+        let mut mon = monitor_at_4x(plant, model, proxy.port(), &format!("{seconds}s"));
+        let status = mon.child.wait().expect("the monitor ends");
+        let _ = mon.wait_for("never printed", Duration::from_millis(200));
+        let err = mon.stderr();
+        assert!(status.success(), "{err}");
+        let stats = proxy.stats();
+        assert!(stats.delayed > 0, "{stats:?}");
+        assert!(
+            mon.seen.is_empty(),
+            "{share}: verdicts on a healthy plant: {:?}\n{err}",
+            mon.seen
+        );
+        assert!(err.contains("flags: none"), "{share}: {err}");
+        assert!(!err.contains("flags written to the PLC: def_"), "{err}");
+        let _ = plc.kill();
+        let _ = plc.wait();
+    }
+}
+
+/// Through the same slow network, C4 stuck at 1 from 60 s: F2 is labelled and
+/// `def_C4` written within 2 s of wall time after the evidence (the deadline
+/// the stuck sensor misses).
+#[test]
+fn a_slow_network_still_flags_a_stuck_sensor_within_two_seconds() {
+    let _serial = serial();
+    let (_dir, plant, model) = learned_virtual_plc();
+    let (mut plc, port) = virtual_plc(model, "200s", Some("F2@60s"));
+    let faults = Faults::delays(
+        0.01,
+        Duration::from_millis(50),
+        Duration::from_millis(300),
+        5,
+    );
+    let proxy = Proxy::start(([127, 0, 0, 1], port).into(), faults);
+    let started = std::time::SystemTime::now();
+    let mut mon = monitor_at_4x(plant, model, proxy.port(), "40s");
+    let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(40));
+    let seen_at = std::time::SystemTime::now();
+    let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
+    assert!(certain.contains("def_C4"), "{certain}");
+    // The verdict's time is on the monitor's live clock: the wall clock at its
+    // start, running 4 times faster.
+    let v: serde_json::Value = serde_json::from_str(&certain).expect("JSON");
+    let t = v["t"].as_str().expect("an RFC 3339 time");
+    let evidence = rfc3339_seconds(t);
+    let start = started
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("epoch")
+        .as_secs_f64();
+    let wall_of_evidence = start + (evidence - start) / 4.0;
+    let now = seen_at
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("epoch")
+        .as_secs_f64();
+    let waited = now - wall_of_evidence;
+    eprintln!("F2 came {waited:.3} s after its evidence");
+    assert!(waited < 2.0, "F2 came {waited:.3} s after its evidence");
+    let status = mon.child.wait().expect("the monitor ends");
+    let err = mon.stderr();
+    assert!(status.success(), "{err}");
+    assert!(err.contains("flags written to the PLC: def_C4"), "{err}");
+    assert!(err.contains("def_C4 raised at"), "{err}");
+    assert!(
+        !mon.seen.iter().any(|l| l.contains("unknown")),
+        "{:?}",
+        mon.seen
+    );
+    let _ = plc.kill();
+    let _ = plc.wait();
+}
+
+/// Seconds since the epoch of an RFC 3339 UTC time (`…T05:00:00.010Z`).
+fn rfc3339_seconds(t: &str) -> f64 {
+    let (date, time) = t
+        .trim_end_matches('Z')
+        .split_once('T')
+        .expect("a date and a time");
+    let mut d = date.split('-').map(|x| x.parse::<i64>().expect("a number"));
+    let (y, m, day) = (
+        d.next().unwrap_or(0),
+        d.next().unwrap_or(0),
+        d.next().unwrap_or(0),
+    );
+    // Days from the civil date (Howard Hinnant's algorithm).
+    let y = if m <= 2 { y - 1 } else { y };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let mp = (m + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + day - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146_097 + doe - 719_468;
+    let mut hms = time.split(':').map(|x| x.parse::<f64>().expect("a number"));
+    let (h, mi, s) = (
+        hms.next().unwrap_or(0.0),
+        hms.next().unwrap_or(0.0),
+        hms.next().unwrap_or(0.0),
+    );
+    days as f64 * 86_400.0 + h * 3600.0 + mi * 60.0 + s
 }

@@ -422,3 +422,71 @@ fn a_blocked_arm_keeps_its_label_while_the_vacuum_switch_moves() {
     );
     assert!(!labels.contains(&"B3.stuck1".to_string()), "{labels:?}");
 }
+
+/// The shipped normal run as a polled source may see it: every second pair
+/// of consecutive PLC scans one scan apart seen at once, at the later scan's
+/// time. Returns the verdicts of a diagnoser told, or not, that its events
+/// come from polls.
+fn merged_scans_verdicts(polled: bool) -> (usize, Vec<Verdict>) {
+    let (plant, model) = setup();
+    let log = read_events(
+        &repo("datasets/data/sorting/normal/events.csv"),
+        &plant.signals,
+        TimeUnit::Ms,
+    )
+    .expect("shipped log");
+    let mut scans: Vec<Vec<diagnoser::Event>> = Vec::new();
+    for &e in &log.events {
+        match scans.last_mut() {
+            Some(s) if s[0].t == e.t => s.push(e),
+            _ => scans.push(vec![e]),
+        }
+    }
+    let mut events = Vec::new();
+    let mut merged = 0;
+    let mut i = 0;
+    while i < scans.len() {
+        let next = scans.get(i + 1);
+        let joinable = next.is_some_and(|n| {
+            n[0].t - scans[i][0].t == plant.scan_period
+                && !n
+                    .iter()
+                    .any(|a| scans[i].iter().any(|b| a.signal == b.signal))
+        });
+        if joinable && merged % 2 == 0 {
+            let t = next.map_or(0, |n| n[0].t);
+            events.extend(scans[i].iter().map(|e| diagnoser::Event { t, ..*e }));
+            events.extend(next.into_iter().flatten().copied());
+            merged += 1;
+            i += 2;
+            continue;
+        }
+        merged += usize::from(joinable);
+        events.extend(scans[i].iter().copied());
+        i += 1;
+    }
+    let options = DiagnoserOptions {
+        polled,
+        ..DiagnoserOptions::default()
+    };
+    let mut d = PlantDiagnoser::new(&plant, &model, &options).expect("diagnoser");
+    let mut out = Vec::new();
+    d.start(log.start, &log.initial);
+    for &e in &events {
+        d.push(e, &mut |v| out.push(v));
+    }
+    let end = events.last().map_or(log.start, |e| e.t);
+    d.finish(end, &mut |v| out.push(v));
+    (merged / 2, out)
+}
+
+#[test]
+fn a_poll_that_sees_two_plc_scans_at_once_stays_normal() {
+    let (merged, as_log) = merged_scans_verdicts(false);
+    assert!(merged > 50, "{merged} merges");
+    // Read as a PLC's own log, some merged scans are not normal...
+    assert!(!as_log.is_empty(), "no merged scan mattered");
+    // ...read as polls, every one is two scans seen at once.
+    let (_, as_polls) = merged_scans_verdicts(true);
+    assert!(as_polls.is_empty(), "{merged} merges: {as_polls:#?}");
+}

@@ -25,6 +25,10 @@
 //! mapped bit, malformed records and datagrams are warnings, and decoding goes
 //! on. CAN is only read here: the flags are not written back.
 //!
+//! CAN frames carry no timestamp: the source reads a local bus (or a bridge
+//! delivering in order), so its watermark, sent whenever the bus stays quiet
+//! for half a scan, is the read clock less that half scan.
+//!
 //! If the socket fails (the interface goes down or away), the source reports
 //! [`Item::Lost`], reopens the interface every [`REOPEN_EVERY`], and starts
 //! again from first values, since what happened in between is unknown.
@@ -317,19 +321,23 @@ async fn run(
     let mut batch: Vec<u8> = Vec::new();
     let mut items = Vec::new();
     let mut note_at = tokio::time::Instant::now() + WAITING_NOTE_AFTER;
+    let tick = gather.max(Duration::from_millis(1));
     loop {
-        let first = if pdos.noted {
-            reader.recv(&mut buf).await
-        } else {
-            match tokio::time::timeout_at(note_at, reader.recv(&mut buf)).await {
-                Ok(r) => r,
-                Err(_) => {
+        let first = match tokio::time::timeout(tick, reader.recv(&mut buf)).await {
+            Ok(r) => r,
+            Err(_) => {
+                // A quiet bus: nothing changed up to the read clock, less
+                // the time a scan's frames take to gather.
+                if pdos.started {
+                    let lag = gather.as_nanos() as Time;
+                    items.push(Item::Watermark(clock.now() - lag));
+                } else if tokio::time::Instant::now() >= note_at {
                     pdos.waiting_note(&mut items);
-                    if !send_all(&tx, &mut items).await {
-                        return;
-                    }
-                    continue;
                 }
+                if !send_all(&tx, &mut items).await {
+                    return;
+                }
+                continue;
             }
         };
         let mut failed = None;

@@ -1,27 +1,37 @@
 //! `gardefou monitor`: online diagnosis beside a PLC. Events come from a
 //! [`source::Source`] as they happen (Modbus TCP, SocketCAN, a replayed log,
-//! JSON lines on stdin); every part's diagnoser reads them, and deadlines fire
-//! on time from timers, with no new event. Verdict changes go out as JSON lines
-//! (SPEC §3), the flags they raise go back to the PLC (Modbus), and `--http`
-//! serves `/status` and `/metrics`.
+//! JSON lines on stdin); every part's diagnoser reads them. Verdict changes go
+//! out as JSON lines (SPEC §3), the flags they raise go back to the PLC
+//! (Modbus), and `--http` serves `/status` and `/metrics`.
 //!
-//! Time: the diagnosers run on the source's clock (the log's time, or a live
-//! source's wall clock). A live clock maps it to the wall clock: `log_now =
-//! anchor_log + (wall − anchor_wall) × speed`, re-anchored whenever an event
-//! arrives ahead of it, so a late source never makes a deadline fire early.
+//! **Event time.** The diagnosers run on the source's clock: the time each
+//! scan was seen, not the time it arrived. A live source also sends
+//! watermarks ([`source::Item::Watermark`]): how far its view of the plant is
+//! complete. A deadline fires only once a watermark has passed it, since only
+//! then is the missing edge evidence. So a late reply, a paused producer or a
+//! flood delays a verdict and never changes it: the verdicts equal `diagnose`
+//! on the same events. When the watermark falls behind the live clock by more
+//! than `--max-lag` of wall time, the plant counts as *not observed*
+//! (`/status`, `/metrics`, a warning) until it catches up.
 //!
-//! When a live source loses the plant (a dropped connection), no deadline fires
-//! until it sees the plant again, since an event could be happening unseen.
-//! The diagnosers then start again from the values read: what happened in the
-//! gap is unknown. Flags already raised stay raised and are written again.
+//! A replay knows its next scan ahead: its deadlines fire at their own time on
+//! a clock mapped to the wall clock (`--speed`), before the next scan.
+//!
+//! When a live source loses the plant (a dropped connection), the watermark
+//! stays where it was until the plant is seen again; the diagnosers then
+//! start again from the values read, with every clock unknown: what happened
+//! in the gap is unknown. Flags already raised stay raised and are written
+//! again. A `def_` flag goes up only once its verdict has held for
+//! `--confirm` beyond the watermark.
 
 pub mod can;
 pub mod http;
 pub mod modbus;
 pub mod source;
 pub mod status;
+pub mod stdin;
 
-use std::cell::{Cell, RefCell};
+use std::cell::Cell;
 use std::io::{IsTerminal, Write};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -39,7 +49,7 @@ use tokio::time::Instant;
 use crate::Failure;
 use crate::diagnose::verdict_line;
 use crate::flags::FlagBoard;
-use source::{Item, Link, Source};
+use source::{FlagImage, Item, Link, Source};
 use status::Status;
 
 /// Arguments of `gardefou monitor`.
@@ -66,9 +76,24 @@ pub struct MonitorArgs {
     replay: Option<PathBuf>,
     /// Read events as JSON lines on standard input:
     /// `{"t": 1200, "signal": "C4", "value": 1}`. The lines of the first
-    /// timestamp give the initial values (as in an events log).
+    /// timestamp give the initial values (as in an events log). A line with
+    /// only a time, `{"t": 1500}`, is a watermark: nothing else happened up
+    /// to then (a quiet plant's deadlines fire on it).
     #[arg(long)]
     stdin: bool,
+    /// How late (in the source's time) a line on standard input may come
+    /// after a later one; later than that, it is a warning and ignored.
+    #[arg(long, value_parser = time::parse_duration, default_value = "0ms")]
+    lateness: Time,
+    /// How long a `def_` flag's verdict must hold, in the source's time beyond
+    /// the watermark, before the flag is raised and written to the PLC
+    /// (default: one scan period).
+    #[arg(long, value_parser = time::parse_duration)]
+    confirm: Option<Time>,
+    /// Wall time the watermark may lag the live clock before the plant counts
+    /// as not observed.
+    #[arg(long, value_parser = time::parse_duration, default_value = "1s")]
+    max_lag: Time,
     /// Serve `/status` (JSON) and `/metrics` (Prometheus) on this address.
     #[arg(long, value_name = "ADDR")]
     http: Option<SocketAddr>,
@@ -114,6 +139,9 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         &model,
         &DiagnoserOptions {
             glitch_max: args.glitch_max,
+            // A poll may see two of the PLC's scans at once; a log or a
+            // producer on stdin gives the scans as they were.
+            polled: args.modbus.is_some() || args.can.is_some(),
         },
     )
     .map_err(|e| bad(format!("{}: {e}", args.model.display())))?;
@@ -129,17 +157,22 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         None => Box::new(std::io::stdout()),
     };
     let terminal = args.output.is_none() && std::io::stdout().is_terminal();
+    // A replay is opened before the runtime starts: its reader (Parquet's
+    // among them) may run a runtime of its own.
+    let replay = match args.replay.clone() {
+        Some(path) => Some((
+            source::Replay::open(path.clone(), args.format, unit, &plant)?,
+            format!("replay {}", path.display()),
+        )),
+        None => None,
+    };
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
     let result = runtime.block_on(async {
-        let (source, name): (Box<dyn Source>, String) = if let Some(path) = args.replay.clone() {
-            let name = format!("replay {}", path.display());
-            (
-                Box::new(source::Replay::open(path, args.format, unit, &plant)?),
-                name,
-            )
+        let (source, name): (Box<dyn Source>, String) = if let Some((r, name)) = replay {
+            (Box::new(r), name)
         } else if let Some(addr) = &args.modbus {
             let s = modbus::ModbusSource::new(addr, args.unit_id, &plant, args.speed)?;
             (Box::new(s), format!("modbus {addr}"))
@@ -147,9 +180,11 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
             let s = can::CanSource::new(iface, &plant, args.speed)?;
             (Box::new(s), format!("can {iface}"))
         } else {
-            let s = source::Stdin {
+            let s = stdin::Stdin {
                 plant: plant.clone(),
                 unit,
+                lateness: args.lateness,
+                speed: args.speed,
             };
             (Box::new(s), "stdin".to_string())
         };
@@ -160,7 +195,6 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
     runtime.shutdown_background();
     result
 }
-
 /// How the monitor writes verdict lines.
 struct Writer {
     out: Box<dyn Write>,
@@ -185,10 +219,274 @@ impl Writer {
     }
 }
 
+/// Where verdicts go: the output, the flags, the status and the PLC.
+struct Outputs {
+    writer: Writer,
+    board: FlagBoard,
+    status: Arc<Mutex<Status>>,
+    flag_tx: watch::Sender<FlagImage>,
+    plant: Plant,
+    /// When the evidence of the verdicts being computed came: a scan's or a
+    /// watermark's arrival, a replayed deadline's expiry (for the latency).
+    evidence: Cell<Instant>,
+}
+
+impl Outputs {
+    fn emit(&mut self, v: Verdict) {
+        self.writer.line(&v);
+        let changed = self.board.update(&v);
+        let Ok(mut s) = self.status.lock() else {
+            return;
+        };
+        s.verdict(&v);
+        s.latency.record(self.evidence.get().elapsed());
+        drop(s);
+        if changed {
+            self.publish_flags();
+        }
+    }
+
+    /// Raises the `def_` flags whose verdict has held long enough by `upto`,
+    /// and says why each goes up.
+    fn confirm(&mut self, upto: Time) {
+        let up = self.board.confirm(upto);
+        if up.is_empty() {
+            return;
+        }
+        let time = self.writer.time;
+        for c in &up {
+            eprintln!(
+                "monitor: {} raised at {}: the verdict of {} held since {} ({})",
+                c.flag,
+                time.format(upto),
+                c.part,
+                time.format(c.since),
+                c.evidence
+            );
+        }
+        self.publish_flags();
+    }
+
+    /// The flags up now, to the status and to the PLC.
+    fn publish_flags(&mut self) {
+        self.status(|s| s.set_flags(self.board.raised(), self.board.suspects()));
+        let _ = self.flag_tx.send(self.board.image(&self.plant));
+    }
+
+    fn status(&self, f: impl FnOnce(&mut Status)) {
+        if let Ok(mut s) = self.status.lock() {
+            f(&mut s);
+        }
+    }
+
+    fn warn(&self, m: &str) {
+        eprintln!("warning: {m}");
+        self.status(|s| s.warnings += 1);
+    }
+}
+
+/// The diagnosers fed in event time.
+struct Run {
+    diagnoser: PlantDiagnoser,
+    out: Outputs,
+    speed: f64,
+    /// Maps the source's time to the wall clock: `(t, when t was now)`.
+    anchor: Option<(Time, Instant)>,
+    started: bool,
+    /// The source has lost the plant: no deadline may fire.
+    blind: bool,
+    lost_at: Option<Time>,
+    /// The source's view is complete up to this time (inclusive).
+    watermark: Option<Time>,
+    /// Whether the watermark keeps up with the live clock.
+    observed: bool,
+    events: u64,
+}
+
+impl Run {
+    /// The source's time now, on the live clock.
+    fn live_now(&self) -> Option<Time> {
+        self.anchor
+            .map(|(t, at)| t + (at.elapsed().as_nanos() as f64 * self.speed) as Time)
+    }
+
+    /// The wall instant of the source's time `t`.
+    fn wall_of(&self, t: Time) -> Option<Instant> {
+        self.anchor
+            .map(|(t0, at)| at + Duration::from_nanos(((t - t0).max(0) as f64 / self.speed) as u64))
+    }
+
+    /// Advances the diagnosers to `t` (deadlines up to it fire) and raises
+    /// the flags confirmed by then.
+    fn advance_to(&mut self, t: Time) {
+        let out = &mut self.out;
+        self.diagnoser.advance_to(t, &mut |v| out.emit(v));
+        self.out.confirm(self.diagnoser.now());
+    }
+
+    fn start(&mut self, t0: Time, initial: &[bool]) {
+        if self.started {
+            let gap = self.lost_at.map_or(String::new(), |l| {
+                format!(" after a gap of {:.3} s", (t0 - l) as f64 / 1e9)
+            });
+            eprintln!(
+                "monitor: plant seen again{gap}; the diagnosers start again from the values read now, with every clock unknown; flags raised stay raised"
+            );
+        }
+        self.diagnoser.start(t0, initial);
+        self.anchor = Some((t0, Instant::now()));
+        self.watermark = Some(t0);
+        self.started = true;
+        self.blind = false;
+        self.lost_at = None;
+        self.out.status(|s| {
+            s.connected = true;
+            s.observed = true;
+            s.t = Some(t0);
+        });
+        self.observed = true;
+    }
+
+    /// One complete scan (its time is also a watermark).
+    fn scan(&mut self, scan: Vec<Event>, arrived: Instant) {
+        let Some(t) = scan.first().map(|e| e.t) else {
+            return;
+        };
+        if !self.started || self.blind {
+            self.out.warn("events before the initial values ignored");
+            return;
+        }
+        if let Some(w) = self.watermark
+            && t <= w
+        {
+            let m = format!(
+                "{} events at {} are behind the watermark {}: ignored",
+                scan.len(),
+                self.out.writer.time.format(t),
+                self.out.writer.time.format(w),
+            );
+            self.out.warn(&m);
+            self.out.status(|s| s.late += 1);
+            return;
+        }
+        self.out.evidence.set(arrived);
+        if self.live_now().is_some_and(|now| t > now) {
+            self.anchor = Some((t, Instant::now()));
+        }
+        // Deadlines before this scan fire first.
+        self.advance_to(t - 1);
+        let n = scan.len() as u64;
+        let out = &mut self.out;
+        for e in scan {
+            self.diagnoser.push(e, &mut |v| out.emit(v));
+        }
+        self.advance_to(t);
+        self.watermark = Some(t);
+        self.events += n;
+        let took = arrived.elapsed();
+        self.out.status(|s| {
+            s.events += n;
+            s.t = Some(t);
+            s.evidence.record(took);
+        });
+    }
+
+    /// The source has shown everything up to `w`: deadlines up to it fire.
+    fn watermark(&mut self, w: Time) {
+        if !self.started || self.blind || self.watermark.is_some_and(|old| w <= old) {
+            return;
+        }
+        let arrived = Instant::now();
+        self.out.evidence.set(arrived);
+        self.advance_to(w);
+        self.watermark = Some(w);
+        let took = arrived.elapsed();
+        self.out.status(|s| s.evidence.record(took));
+    }
+
+    fn lost(&mut self, t: Time, why: &str) {
+        // The watermark stays: what happened since it is unknown.
+        self.blind = true;
+        self.lost_at = Some(t);
+        self.out.warn(&format!(
+            "{why}; no deadline fires until the plant is seen again"
+        ));
+        self.out.status(|s| {
+            s.connected = false;
+            s.gaps += 1;
+        });
+    }
+
+    /// Whether the watermark keeps up with the live clock (live sources).
+    fn check_lag(&mut self, max_lag: Duration) {
+        let (Some(now), Some(w)) = (self.live_now(), self.watermark) else {
+            return;
+        };
+        if !self.started || self.blind {
+            return;
+        }
+        let lag = Duration::from_nanos(((now - w).max(0) as f64 / self.speed) as u64);
+        let observed = lag <= max_lag;
+        if observed == self.observed {
+            return;
+        }
+        self.observed = observed;
+        if observed {
+            eprintln!("monitor: plant observed again: the source caught up with the live clock");
+        } else {
+            self.out.warn(&format!(
+                "plant not observed: the source has shown nothing after {} for {:.3} s; no deadline fires until it catches up",
+                self.out.writer.time.format(w),
+                lag.as_secs_f64()
+            ));
+        }
+        self.out.status(|s| s.observed = observed);
+    }
+
+    fn found_raised(&mut self, flags: &[String]) {
+        eprintln!(
+            "monitor: flags already up on the PLC, kept raised: {}",
+            flags.join(" ")
+        );
+        for f in flags {
+            self.out.board.adopt(f);
+        }
+        self.out.publish_flags();
+    }
+
+    /// Takes in one item from a live source.
+    fn item(&mut self, item: Item) -> Result<(), Failure> {
+        match item {
+            Item::Start(t0, initial) => self.start(t0, &initial),
+            Item::Scan(scan) => self.scan(scan, Instant::now()),
+            Item::Watermark(w) => self.watermark(w),
+            Item::Lost(t, why) => self.lost(t, &why),
+            Item::FoundRaised(flags) => self.found_raised(&flags),
+            Item::FlagsWritten(up) => {
+                if !up.is_empty() {
+                    eprintln!("monitor: flags written to the PLC: {}", up.join(" "));
+                }
+                self.out.status(|s| s.flag_writes += 1);
+            }
+            Item::Late(m) => {
+                self.out.warn(&m);
+                self.out.status(|s| s.late += 1);
+            }
+            Item::FarAhead(m) => {
+                self.out.warn(&m);
+                self.out.status(|s| s.far_ahead += 1);
+            }
+            Item::Warning(w) => self.out.warn(&w),
+            Item::Fatal(f) => return Err(f),
+        }
+        Ok(())
+    }
+}
+
 async fn monitor(
     args: &MonitorArgs,
     plant: Plant,
-    mut diagnoser: PlantDiagnoser,
+    diagnoser: PlantDiagnoser,
     source: Box<dyn Source>,
     source_name: String,
     output: Box<dyn Write>,
@@ -207,88 +505,48 @@ async fn monitor(
         items: tx,
         flags: flag_rx,
     });
-
-    let writer = RefCell::new(Writer {
-        out: output,
-        terminal,
-        time: time_format,
-        error: None,
-    });
-    let board = RefCell::new(FlagBoard::default());
-    // When the evidence of the verdicts being computed came: an event's
-    // arrival or a deadline's expiry (for the latency).
-    let evidence = Cell::new(Instant::now());
-    let mut emit = |v: Verdict| {
-        writer.borrow_mut().line(&v);
-        let mut b = board.borrow_mut();
-        let changed = b.update(&v);
-        let Ok(mut s) = status.lock() else { return };
-        s.verdict(&v);
-        s.latency.record(evidence.get().elapsed());
-        if changed {
-            s.set_flags(b.raised(), b.suspects());
-            let _ = flag_tx.send(b.image(&plant));
-        }
+    let confirmation = args.confirm.unwrap_or(plant.scan_period);
+    let mut run = Run {
+        diagnoser,
+        out: Outputs {
+            writer: Writer {
+                out: output,
+                terminal,
+                time: time_format,
+                error: None,
+            },
+            board: FlagBoard::with_confirmation(confirmation),
+            status: status.clone(),
+            flag_tx,
+            plant,
+            evidence: Cell::new(Instant::now()),
+        },
+        speed: args.speed,
+        anchor: None,
+        started: false,
+        blind: false,
+        lost_at: None,
+        watermark: None,
+        observed: true,
+        events: 0,
     };
-    let with_status = |f: &mut dyn FnMut(&mut Status)| {
-        if let Ok(mut s) = status.lock() {
-            f(&mut s);
-        }
-    };
-
     let stop_at = args
         .duration
         .map(|d| Instant::now() + Duration::from_nanos(d.max(0) as u64));
-    let speed = args.speed;
-    // The live clock: `anchor` maps a log time to a wall instant.
-    let mut anchor: Option<(Time, Instant)> = None;
-    let wall_of = |anchor: (Time, Instant), t: Time| -> Instant {
-        let ahead = ((t - anchor.0).max(0) as f64 / speed) as u64;
-        anchor.1 + Duration::from_nanos(ahead)
-    };
-    let log_now = |anchor: (Time, Instant)| -> Time {
-        anchor.0 + (anchor.1.elapsed().as_nanos() as f64 * speed) as Time
-    };
-    let mut started = false;
-    // The source has lost the plant: no deadline may fire.
-    let mut blind = false;
-    let mut lost_at: Option<Time> = None;
-    let mut last_t: Option<Time> = None;
-    let mut warnings = 0u64;
-    let mut events = 0u64;
-    let warn = |m: String, warnings: &mut u64| {
-        *warnings += 1;
-        eprintln!("warning: {m}");
-        with_status(&mut |s| s.warnings += 1);
-    };
-    // A scan received, waiting for its time on the live clock (replay).
+    let max_lag = Duration::from_nanos(args.max_lag.max(0) as u64);
+    let mut lag_check = tokio::time::interval(Duration::from_millis(100));
+    lag_check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    // A replayed scan received, waiting for its time on the live clock.
     let mut pending: Option<(Vec<Event>, Instant)> = None;
-    // The pending scan's time has come.
-    let mut ready = false;
     let mut terminate = terminate_signal()?;
     let stopped = loop {
-        // The next deadline, as a wall instant.
-        let deadline = match (anchor, diagnoser.next_deadline(), blind) {
-            (Some(a), Some(d), false) => Some(wall_of(a, d)),
+        let pending_t = pending.as_ref().and_then(|p| p.0.first()).map(|e| e.t);
+        // A replay's deadline fires at its own time, if before the next scan.
+        let deadline = match (run.diagnoser.next_deadline(), pending_t) {
+            (Some(d), Some(t)) if d < t => run.wall_of(d).map(|at| (d, at)),
             _ => None,
         };
-        let pending_t = pending.as_ref().and_then(|s| s.0.first()).map(|e| e.t);
-        let due = match (pending_t, anchor) {
-            (Some(t), Some(a)) if knows_ahead => Some(wall_of(a, t)),
-            (Some(_), _) => pending.as_ref().map(|p| p.1),
-            (None, _) => None,
-        };
-        // A live source's deadline fires when the wall clock passes it. A
-        // replay knows what comes next: its deadline fires only before the
-        // next scan (once the source ends, `finish` fires the rest).
-        let deadline_first = match (deadline, knows_ahead) {
-            (None, _) => false,
-            (Some(d), false) => due.is_none_or(|due| d < due),
-            (Some(_), true) => diagnoser
-                .next_deadline()
-                .zip(pending_t)
-                .is_some_and(|(d, t)| d < t),
-        };
+        let due = pending.as_ref().map(|p| p.1);
         let far = Instant::now() + Duration::from_secs(86_400);
         tokio::select! {
             biased;
@@ -297,189 +555,105 @@ async fn monitor(
             () = tokio::time::sleep_until(stop_at.unwrap_or(far)), if stop_at.is_some() => {
                 break Some("--duration reached");
             }
-            () = wake_at(deadline.unwrap_or(far)), if deadline_first => {
-                if let (Some(d), Some(at)) = (diagnoser.next_deadline(), deadline) {
-                    evidence.set(at);
-                    diagnoser.advance_to(d, &mut emit);
-                    with_status(&mut |s| s.evidence.record(at.elapsed()));
+            () = wake_at(deadline.map_or(far, |d| d.1)), if deadline.is_some() => {
+                if let Some((d, at)) = deadline {
+                    run.out.evidence.set(at);
+                    // Past the deadline, so that the loop always moves on.
+                    run.advance_to(d.max(run.diagnoser.now() + 1));
+                    run.out.status(|s| s.evidence.record(at.elapsed()));
                 }
             }
-            () = wake_at(due.unwrap_or(far)), if due.is_some() => ready = true,
+            () = wake_at(due.unwrap_or(far)), if due.is_some() => {
+                if let Some((scan, at)) = pending.take() {
+                    run.scan(scan, at);
+                }
+            }
+            _ = lag_check.tick(), if !knows_ahead => run.check_lag(max_lag),
             item = rx.recv(), if pending.is_none() => {
                 let Some(item) = item else { break None };
                 match item {
-                    Item::Start(t0, initial) => {
-                        if started {
-                            let gap = lost_at.map_or(String::new(), |l| {
-                                format!(" after a gap of {:.3} s", (t0 - l) as f64 / 1e9)
-                            });
-                            eprintln!(
-                                "monitor: plant seen again{gap}; the diagnosers start again from the values read now, flags raised stay raised"
-                            );
-                        }
-                        diagnoser.start(t0, &initial);
-                        anchor = Some((t0, Instant::now()));
-                        last_t = Some(t0);
-                        started = true;
-                        blind = false;
-                        lost_at = None;
-                        with_status(&mut |s| {
-                            s.connected = true;
-                            s.t = Some(t0);
-                        });
+                    Item::Scan(scan) if knows_ahead && run.started => {
+                        let t = scan.first().map_or(0, |e| e.t);
+                        let at = run.wall_of(t).unwrap_or_else(Instant::now);
+                        pending = Some((scan, at));
                     }
-                    Item::Scan(_) if !started || blind => {
-                        warn("events before the initial values ignored".into(), &mut warnings);
-                    }
-                    Item::Scan(scan) => {
-                        let t = scan.first().map_or(Time::MIN, |e| e.t);
-                        if last_t.is_some_and(|l| t < l) {
-                            warn(
-                                format!(
-                                    "time went backwards ({} after {}): {} events ignored",
-                                    time_format.format(t),
-                                    last_t.map_or_else(String::new, |l| time_format.format(l)),
-                                    scan.len()
-                                ),
-                                &mut warnings,
-                            );
-                        } else if !scan.is_empty() {
-                            pending = Some((scan, Instant::now()));
-                            // A live scan is due as soon as it arrives.
-                            ready = !knows_ahead;
-                        }
-                    }
-                    Item::Lost(t, why) => {
-                        // Deadlines already past still count: they passed
-                        // while the plant was seen.
-                        if let Some(l) = last_t
-                            && t > l
-                        {
-                            evidence.set(Instant::now());
-                            diagnoser.advance_to(t, &mut emit);
-                            last_t = Some(t);
-                        }
-                        blind = true;
-                        lost_at = Some(t);
-                        warn(
-                            format!("{why}; no deadline fires until the plant is seen again"),
-                            &mut warnings,
-                        );
-                        with_status(&mut |s| {
-                            s.connected = false;
-                            s.gaps += 1;
-                        });
-                    }
-                    Item::FoundRaised(flags) => {
-                        eprintln!(
-                            "monitor: flags already up on the PLC, kept raised: {}",
-                            flags.join(" ")
-                        );
-                        let mut b = board.borrow_mut();
-                        for f in &flags {
-                            b.adopt(f);
-                        }
-                        let image = b.image(&plant);
-                        with_status(&mut |s| s.set_flags(b.raised(), b.suspects()));
-                        let _ = flag_tx.send(image);
-                    }
-                    Item::FlagsWritten(up) => {
-                        if !up.is_empty() {
-                            eprintln!("monitor: flags written to the PLC: {}", up.join(" "));
-                        }
-                        with_status(&mut |s| s.flag_writes += 1);
-                    }
-                    Item::Warning(w) => warn(w, &mut warnings),
-                    Item::Fatal(f) => return Err(f),
+                    item => run.item(item)?,
                 }
             }
         }
-        if ready
-            && let Some((scan, arrived)) = pending.take()
-            && let Some(t) = scan.first().map(|e| e.t)
-        {
-            ready = false;
-            evidence.set(if knows_ahead {
-                due.unwrap_or(arrived)
-            } else {
-                arrived
-            });
-            if let Some(a) = anchor
-                && t > log_now(a)
-            {
-                anchor = Some((t, Instant::now()));
-            }
-            // Deadlines before this scan fire first.
-            if let Some(l) = last_t
-                && t > l
-            {
-                diagnoser.advance_to(t - 1, &mut emit);
-            }
-            let n = scan.len() as u64;
-            events += n;
-            for e in scan {
-                diagnoser.push(e, &mut emit);
-            }
-            diagnoser.advance_to(t, &mut emit);
-            last_t = Some(t);
-            let took = evidence.get().elapsed();
-            with_status(&mut |s| {
-                s.events += n;
-                s.t = Some(t);
-                s.evidence.record(took);
-            });
-        }
-        let error = writer.borrow_mut().error.take();
+        let error = run.out.writer.error.take();
         if let Some(e) = error {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
                 return Ok(());
             }
             return Err(Failure::output(e));
         }
+        // Whatever the input, the runtime gets its turn now and then, so that
+        // signals are always heard.
+        tokio::task::consume_budget().await;
     };
     drop(rx);
-    if started {
-        // Deadlines up to now (or the last event) still count, unless blind.
-        let end = match (stopped, anchor, blind) {
-            (_, _, true) => last_t.unwrap_or(0),
-            (Some(_), Some(a), false) => log_now(a).max(last_t.unwrap_or(a.0)),
-            _ => last_t.unwrap_or(0),
-        };
-        evidence.set(Instant::now());
-        let summary = diagnoser.finish(end, &mut emit);
-        let error = writer.borrow_mut().error.take();
-        if let Some(e) = error
-            && e.kind() != std::io::ErrorKind::BrokenPipe
-        {
-            return Err(Failure::output(e));
-        }
-        let flagged: Vec<String> = summary.iter().flat_map(|p| p.flags.clone()).collect();
-        let b = board.borrow();
-        let mut flags: Vec<String> = b.raised().to_vec();
-        for f in flagged {
-            if !flags.contains(&f) {
-                flags.push(f);
-            }
-        }
-        let (lines, labels, evidence) = status
-            .lock()
-            .map(|s| (s.verdict_changes, s.latency.clone(), s.evidence.clone()))
-            .unwrap_or_default();
-        eprintln!(
-            "monitor {}: {events} events, {lines} verdict changes, {warnings} warnings; flags: {}",
-            stopped.unwrap_or("source ended"),
-            if flags.is_empty() {
-                "none".to_string()
-            } else {
-                flags.join(" ")
-            },
-        );
-        eprintln!(
-            "monitor latency: labels {}; every scan and deadline {}",
-            labels.summary(),
-            evidence.summary()
-        );
+    finish(&mut run, stopped, knows_ahead)
+}
+
+/// Ends the run: deadlines up to the watermark (a replay: up to its clock, or
+/// its last scan) still count; then the summary on stderr (also when the
+/// plant was never seen).
+fn finish(run: &mut Run, stopped: Option<&str>, knows_ahead: bool) -> Result<(), Failure> {
+    let last = run.watermark.unwrap_or(0);
+    let end = match (stopped, knows_ahead, run.live_now()) {
+        (Some(_), true, Some(now)) if !run.blind => now.max(last),
+        _ => last,
+    };
+    run.out.evidence.set(Instant::now());
+    let out = &mut run.out;
+    let summary = if run.started {
+        run.diagnoser.finish(end, &mut |v| out.emit(v))
+    } else {
+        Vec::new()
+    };
+    run.out.confirm(end);
+    let error = run.out.writer.error.take();
+    if let Some(e) = error
+        && e.kind() != std::io::ErrorKind::BrokenPipe
+    {
+        return Err(Failure::output(e));
     }
+    let flagged: Vec<String> = summary.iter().flat_map(|p| p.flags.clone()).collect();
+    let mut flags: Vec<String> = run.out.board.raised().to_vec();
+    for f in flagged {
+        if !flags.contains(&f) {
+            flags.push(f);
+        }
+    }
+    let (lines, warnings, labels, evidence) = run
+        .out
+        .status
+        .lock()
+        .map(|s| {
+            (
+                s.verdict_changes,
+                s.warnings,
+                s.latency.clone(),
+                s.evidence.clone(),
+            )
+        })
+        .unwrap_or_default();
+    eprintln!(
+        "monitor {}: {} events, {lines} verdict changes, {warnings} warnings; flags: {}",
+        stopped.unwrap_or("source ended"),
+        run.events,
+        if flags.is_empty() {
+            "none".to_string()
+        } else {
+            flags.join(" ")
+        },
+    );
+    eprintln!(
+        "monitor latency: labels {}; every scan and deadline {}",
+        labels.summary(),
+        evidence.summary()
+    );
     Ok(())
 }
 

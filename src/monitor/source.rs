@@ -1,13 +1,17 @@
 //! Where the monitor's events come from. Every source runs as its own task and
 //! sends [`Item`]s over a channel; sources that can write to the PLC (Modbus)
 //! also receive the flags to write back.
+//!
+//! Live sources work in event time: each scan carries the time the plant was
+//! seen, and [`Item::Watermark`] says up to when the source's view is
+//! complete. The monitor fires a deadline only once a watermark has passed it,
+//! so a slow network or a paused producer delays a verdict and never makes
+//! one.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
-use diagnoser::{Event, Plant, Time, TimeFormat, TimeUnit, time};
+use diagnoser::{Event, Plant, Time, TimeFormat, TimeUnit};
 use learning::ingest::{IngestOptions, LogFormat, open};
-use tokio::io::AsyncBufReadExt;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
@@ -19,8 +23,17 @@ pub enum Item {
     /// Every signal's value at `t`: the first values of the run, or the values
     /// read again after a gap (see [`Item::Lost`]).
     Start(Time, Vec<bool>),
-    /// One scan: the changes seen at one time.
+    /// One scan: the changes seen at one time, complete: the source has shown
+    /// everything up to that time (a watermark at it).
     Scan(Vec<Event>),
+    /// The source has shown everything up to this time (inclusive): a
+    /// deadline up to it is evidence. Deadlines of a live source fire only
+    /// from watermarks, never from the wall clock.
+    Watermark(Time),
+    /// Data behind the watermark, ignored.
+    Late(String),
+    /// Data far ahead of the live clock, ignored.
+    FarAhead(String),
     /// The source can no longer see the plant (connection lost at `t`): no
     /// deadline may fire until the next [`Item::Start`], since an event could
     /// be happening unseen.
@@ -171,146 +184,4 @@ impl Source for Replay {
             }
         });
     }
-}
-
-/// JSON events on standard input.
-pub struct Stdin {
-    /// The plant.
-    pub plant: Plant,
-    /// Unit of numeric timestamps.
-    pub unit: TimeUnit,
-}
-
-impl Source for Stdin {
-    fn time_format(&self) -> TimeFormat {
-        TimeFormat::Numeric(self.unit)
-    }
-
-    fn spawn(self: Box<Self>, link: Link) {
-        tokio::spawn(read_stdin(self.plant, self.unit, link.items));
-    }
-}
-
-/// JSON lines on standard input: `{"t": …, "signal": "C4", "value": 1}`. Lines
-/// with one timestamp form a scan, complete when a later timestamp comes or
-/// when no line has come for [`SCAN_IDLE`].
-async fn read_stdin(plant: Plant, unit: TimeUnit, tx: mpsc::Sender<Item>) {
-    let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
-    let mut initial = vec![false; plant.signals.len()];
-    let mut first: Option<Time> = None;
-    let mut sent = false;
-    let mut scan: Vec<Event> = Vec::new();
-    let mut number = 0u64;
-    loop {
-        let next = if scan.is_empty() && sent {
-            Ok(lines.next_line().await)
-        } else {
-            tokio::time::timeout(SCAN_IDLE, lines.next_line()).await
-        };
-        let line = match next {
-            // Quiet: the scan (or the initial values) is complete.
-            Err(_) => {
-                if !send_start(&tx, first, &mut sent, &mut initial).await
-                    || !send_scan(&tx, &mut scan).await
-                {
-                    return;
-                }
-                continue;
-            }
-            Ok(Ok(Some(l))) => l,
-            Ok(Ok(None)) => break,
-            Ok(Err(e)) => {
-                let _ = tx
-                    .send(Item::Fatal(Failure::Io(format!("standard input: {e}"))))
-                    .await;
-                return;
-            }
-        };
-        number += 1;
-        if line.trim().is_empty() {
-            continue;
-        }
-        let e = match parse_event(&line, &plant, unit) {
-            Ok(e) => e,
-            Err(m) => {
-                let m = format!("standard input: line {number}: {m}");
-                if tx.send(Item::Warning(m)).await.is_err() {
-                    return;
-                }
-                continue;
-            }
-        };
-        match first {
-            None => {
-                first = Some(e.t);
-                initial[e.signal.index()] = e.value;
-            }
-            Some(t0) if !sent && e.t == t0 => initial[e.signal.index()] = e.value,
-            Some(_) => {
-                if !send_start(&tx, first, &mut sent, &mut initial).await
-                    || scan.first().is_some_and(|f| f.t != e.t) && !send_scan(&tx, &mut scan).await
-                {
-                    return;
-                }
-                scan.push(e);
-            }
-        }
-    }
-    if send_start(&tx, first, &mut sent, &mut initial).await {
-        send_scan(&tx, &mut scan).await;
-    }
-}
-
-/// Sends the initial values once; false if the monitor has gone.
-async fn send_start(
-    tx: &mpsc::Sender<Item>,
-    first: Option<Time>,
-    sent: &mut bool,
-    initial: &mut Vec<bool>,
-) -> bool {
-    match first {
-        Some(t0) if !*sent => {
-            *sent = true;
-            tx.send(Item::Start(t0, std::mem::take(initial)))
-                .await
-                .is_ok()
-        }
-        _ => true,
-    }
-}
-
-/// Sends the scan gathered so far, if any; false if the monitor has gone.
-async fn send_scan(tx: &mpsc::Sender<Item>, scan: &mut Vec<Event>) -> bool {
-    scan.is_empty() || tx.send(Item::Scan(std::mem::take(scan))).await.is_ok()
-}
-
-/// How long standard input may stay quiet before the lines read so far count
-/// as a complete scan.
-const SCAN_IDLE: Duration = Duration::from_millis(2);
-
-/// One JSON event line.
-fn parse_event(line: &str, plant: &Plant, unit: TimeUnit) -> Result<Event, String> {
-    let v: serde_json::Value = serde_json::from_str(line).map_err(|e| format!("not JSON: {e}"))?;
-    let t = match &v["t"] {
-        serde_json::Value::Number(n) => n
-            .as_f64()
-            .map(|x| (x * unit.nanos() as f64).round() as Time)
-            .ok_or("field 't': not a number")?,
-        serde_json::Value::String(s) => {
-            time::parse_rfc3339(s).ok_or("field 't': not an RFC 3339 time")?
-        }
-        _ => return Err("field 't': missing".into()),
-    };
-    let name = v["signal"].as_str().ok_or("field 'signal': missing")?;
-    let signal = plant
-        .signals
-        .id(name)
-        .ok_or_else(|| format!("field 'signal': unknown signal '{name}'"))?;
-    let value = match &v["value"] {
-        serde_json::Value::Bool(b) => *b,
-        serde_json::Value::Number(n) if n.as_u64() == Some(0) => false,
-        serde_json::Value::Number(n) if n.as_u64() == Some(1) => true,
-        _ => return Err("field 'value': expected 0, 1, true or false".into()),
-    };
-    Ok(Event { t, signal, value })
 }

@@ -113,6 +113,9 @@ pub struct Status {
     pub source: String,
     /// Whether the source sees the plant now.
     pub connected: bool,
+    /// Whether the source's watermark keeps up with the live clock: when not,
+    /// no deadline fires (what is missing may still come).
+    pub observed: bool,
     /// Time of the last scan read, if any (printed when `/status` is asked:
     /// not on every scan).
     #[serde(serialize_with = "no_time")]
@@ -131,6 +134,10 @@ pub struct Status {
     pub warnings: u64,
     /// Times the source lost the plant.
     pub gaps: u64,
+    /// Data that came behind the watermark, ignored.
+    pub late: u64,
+    /// Data far ahead of the live clock, ignored.
+    pub far_ahead: u64,
     /// Flag images written to the PLC.
     pub flag_writes: u64,
     #[serde(skip)]
@@ -168,6 +175,7 @@ impl Status {
             plant: plant.name.clone(),
             source,
             connected: false,
+            observed: true,
             t: None,
             parts: plant
                 .parts
@@ -188,6 +196,8 @@ impl Status {
             verdict_changes: 0,
             warnings: 0,
             gaps: 0,
+            late: 0,
+            far_ahead: 0,
             flag_writes: 0,
             latency: Latency::default(),
             evidence: Latency::default(),
@@ -245,6 +255,16 @@ impl Status {
         counter("warnings_total", "Warnings given.", self.warnings);
         counter("gaps_total", "Times the source lost the plant.", self.gaps);
         counter(
+            "late_total",
+            "Data behind the watermark, ignored.",
+            self.late,
+        );
+        counter(
+            "far_ahead_total",
+            "Data far ahead of the live clock, ignored.",
+            self.far_ahead,
+        );
+        counter(
             "flag_writes_total",
             "Flag images written to the PLC.",
             self.flag_writes,
@@ -255,6 +275,12 @@ impl Status {
         );
         let _ = writeln!(m, "# TYPE gardefou_connected gauge");
         let _ = writeln!(m, "gardefou_connected {}", u8::from(self.connected));
+        let _ = writeln!(
+            m,
+            "# HELP gardefou_observed Whether the source's watermark keeps up with the live clock."
+        );
+        let _ = writeln!(m, "# TYPE gardefou_observed gauge");
+        let _ = writeln!(m, "gardefou_observed {}", u8::from(self.observed));
         let _ = writeln!(
             m,
             "# HELP gardefou_flag Flags the PLC's filter reads (1: up)."

@@ -61,12 +61,20 @@ pub struct DiagnoserOptions {
     /// before the sensor reads its real value again, in nanoseconds. Longer, it
     /// is a stuck sensor.
     pub glitch_max: Time,
+    /// The events come from polls of a running PLC, not from its own log: one
+    /// observed scan may hold two of the PLC's scans (a poll late by a scan,
+    /// a PLC catching up), an order and the sensor's answer to it in the
+    /// next scan seen together. A part's scan that one step does not explain
+    /// as normal is then also tried as two steps at the same time, the orders
+    /// first or the sensors first.
+    pub polled: bool,
 }
 
 impl Default for DiagnoserOptions {
     fn default() -> Self {
         DiagnoserOptions {
             glitch_max: 100 * crate::MS,
+            polled: false,
         }
     }
 }
@@ -170,6 +178,8 @@ pub struct PlantDiagnoser {
     before: Vec<Option<Time>>,
     after: Vec<Option<Time>>,
     coordinator: Coordinator,
+    /// See [`DiagnoserOptions::polled`].
+    polled: bool,
 }
 
 impl PlantDiagnoser {
@@ -226,6 +236,7 @@ impl PlantDiagnoser {
             unit: model.time_unit,
             before: Vec::new(),
             after: Vec::new(),
+            polled: options.polled,
         })
     }
 
@@ -408,31 +419,19 @@ impl PlantDiagnoser {
                 continue;
             }
             let p = part as usize;
-            let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
-            read(&run.origins, t, &mut self.before);
             // Timers up to `t` have fired: the state is already up to date.
-            let previous = run.state;
-            let obs_before = run.obs;
-            // The scan resets the clocks of its edges.
-            let after_obs = run.obs ^ changed;
-            let acts = engine.part.actuator_mask();
-            for (c, clock) in engine.part.clocks.iter().enumerate() {
-                let reset = match *clock {
-                    Clock::Command => changed & acts != 0,
-                    Clock::Edge { bit, rising } => {
-                        changed >> bit & 1 == 1 && (after_obs >> bit & 1 == 1) == rising
-                    }
-                };
-                if reset {
-                    run.origins[c] = Some(t);
-                }
+            let previous = self.runs[p].state;
+            let obs_before = self.runs[p].obs;
+            // A copy to try again from, only where scans may have merged.
+            let saved = self.polled.then(|| self.runs[p].clone());
+            self.step(p, t, changed);
+            if let Some(saved) = saved
+                && !self.is_normal(p)
+                && normal(&self.engines[p], previous)
+            {
+                self.split_step(p, t, changed, &saved);
             }
-            read(&run.origins, t, &mut self.after);
-            run.state = engine.scan(previous, changed, &self.before, &self.after);
-            run.obs = after_obs;
-            if changed & acts != 0 {
-                run.last_command = Some((obs_before, changed & acts));
-            }
+            let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
             run.next_timer = engine.next_timer(run.state, &run.origins, t);
             if let Some(x) = run.next_timer
                 && self.earliest.is_none_or(|e| x < e)
@@ -443,6 +442,61 @@ impl PlantDiagnoser {
         }
         pending.clear();
         self.pending = pending;
+    }
+
+    /// Part `p` takes the edges `changed` at `t`: their clocks start, and its
+    /// state moves on.
+    fn step(&mut self, p: usize, t: Time, changed: u32) {
+        let (engine, run) = (&mut self.engines[p], &mut self.runs[p]);
+        read(&run.origins, t, &mut self.before);
+        let previous = run.state;
+        let obs_before = run.obs;
+        let after_obs = run.obs ^ changed;
+        let acts = engine.part.actuator_mask();
+        for (c, clock) in engine.part.clocks.iter().enumerate() {
+            let reset = match *clock {
+                Clock::Command => changed & acts != 0,
+                Clock::Edge { bit, rising } => {
+                    changed >> bit & 1 == 1 && (after_obs >> bit & 1 == 1) == rising
+                }
+            };
+            if reset {
+                run.origins[c] = Some(t);
+            }
+        }
+        read(&run.origins, t, &mut self.after);
+        run.state = engine.scan(previous, changed, &self.before, &self.after);
+        run.obs = after_obs;
+        if changed & acts != 0 {
+            run.last_command = Some((obs_before, changed & acts));
+        }
+    }
+
+    /// A polled scan that one step does not explain as normal: the orders
+    /// then the sensors, or the sensors then the orders, as two PLC scans
+    /// seen at once. The first split that is normal stands; else the one step.
+    fn split_step(&mut self, p: usize, t: Time, changed: u32, saved: &PartRun) {
+        let acts = self.engines[p].part.actuator_mask();
+        let (orders, sensors) = (changed & acts, changed & !acts);
+        if orders == 0 || sensors == 0 {
+            return;
+        }
+        let one_step = self.runs[p].clone();
+        for first in [orders, sensors] {
+            self.runs[p] = saved.clone();
+            self.step(p, t, first);
+            if self.is_normal(p) {
+                self.step(p, t, changed ^ first);
+                if self.is_normal(p) {
+                    return;
+                }
+            }
+        }
+        self.runs[p] = one_step;
+    }
+
+    fn is_normal(&self, p: usize) -> bool {
+        normal(&self.engines[p], self.runs[p].state)
     }
 
     /// Part `p`'s state has just moved on from `previous`: reports what changed,
@@ -619,6 +673,11 @@ impl PlantDiagnoser {
             reason,
         }
     }
+}
+
+/// Whether the normal hypothesis lives in `state`.
+fn normal(engine: &Engine, state: u32) -> bool {
+    engine.labels(engine.state(state).labels).normal
 }
 
 fn read(origins: &[Option<Time>], t: Time, into: &mut Vec<Option<Time>>) {

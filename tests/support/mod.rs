@@ -1,0 +1,47 @@
+//! Support code shared by the integration tests: a proxy that puts network
+//! faults between a Modbus TCP client and server (`netfault`), and a feeder
+//! that writes lines to a child's stdin at a chosen pace (`feeder`).
+
+// Each tests/*.rs is its own crate and uses only part of this module.
+#![allow(dead_code)]
+
+pub mod feeder;
+pub mod netfault;
+
+/// A tiny deterministic generator (SplitMix64): a fault plan or a pace drawn
+/// from a seed is the same on every run, so a failing run can be replayed,
+/// and no crate is needed for it.
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `0.0..1.0`.
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// True with probability `p` (never for 0.0, always for 1.0).
+    pub fn chance(&mut self, p: f64) -> bool {
+        self.unit() < p
+    }
+
+    /// Uniform in `lo..=hi`.
+    pub fn between(
+        &mut self,
+        lo: std::time::Duration,
+        hi: std::time::Duration,
+    ) -> std::time::Duration {
+        lo + hi.saturating_sub(lo).mul_f64(self.unit())
+    }
+}
