@@ -106,6 +106,10 @@ impl FlagBoard {
     /// confirmation time by `upto` (the event time up to which the source has
     /// shown everything), and returns them.
     pub fn confirm(&mut self, upto: Time) -> Vec<Candidate> {
+        // Called on every scan and watermark: nothing to do is the rule.
+        if self.waiting.is_empty() {
+            return Vec::new();
+        }
         let due = |c: &Candidate| c.since.saturating_add(self.confirmation) <= upto;
         let (now, later): (Vec<Candidate>, Vec<Candidate>) =
             self.waiting.drain(..).partition(|c| due(c));

@@ -77,6 +77,12 @@ fn monitor(http: SocketAddr) -> Child {
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
+    with_descriptors(&mut cmd);
+    cmd.spawn().expect("starts")
+}
+
+/// Lets `cmd` open at most `MONITOR_NOFILE` descriptors.
+fn with_descriptors(cmd: &mut Command) {
     // SAFETY: setrlimit is async-signal-safe and touches no memory of ours
     // but the struct.
     unsafe {
@@ -92,7 +98,6 @@ fn monitor(http: SocketAddr) -> Child {
             }
         });
     }
-    cmd.spawn().expect("starts")
 }
 
 /// The sorting line's initial values, as JSON lines at t = 0, then an order.
@@ -474,20 +479,7 @@ fn idle_connections_do_not_keep_the_plc_from_being_reconnected() {
         .args(["--http", &http.to_string(), "--duration", "60s"])
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
-    // SAFETY: as in `monitor`.
-    unsafe {
-        cmd.pre_exec(|| {
-            let l = libc::rlimit {
-                rlim_cur: MONITOR_NOFILE,
-                rlim_max: MONITOR_NOFILE,
-            };
-            if libc::setrlimit(libc::RLIMIT_NOFILE, &l) == 0 {
-                Ok(())
-            } else {
-                Err(std::io::Error::last_os_error())
-            }
-        });
-    }
+    with_descriptors(&mut cmd);
     let mut child = cmd.spawn().expect("starts");
     let pid = child.id();
     wait_until_serving(http);

@@ -287,63 +287,9 @@ fn garbage_on_the_socket_is_a_lost_connection() {
 #[test]
 fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
     let _serial = serial();
-    let dir = tempfile::tempdir().expect("temporary directory");
-    let run = dir.path().join("run");
-    let model = dir.path().join("model.json");
-    let bin = env!("CARGO_BIN_EXE_gardefou");
-    let ok = |out: std::process::Output| {
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    // The model is learned from the same control: one fault-free hour.
-    ok(Command::new(bin)
-        .args(["simulate", "--control", "constraints", "--duration", "1h"])
-        .args(["--seed", "7", "--out"])
-        .arg(&run)
-        .output()
-        .expect("simulate runs"));
-    // Polling adds up to half a scan to every edge, and a loaded machine's
-    // scheduling a few milliseconds more (times the speed): wider guards.
-    ok(Command::new(bin)
-        .args(["learn", "--margin", "50ms", "--plant"])
-        .arg(run.join("plant.toml"))
-        .arg(run.join("events.csv"))
-        .arg("-o")
-        .arg(&model)
-        .output()
-        .expect("learn runs"));
-
-    let mut plc = Command::new(bin)
-        .args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
-        .args(["--speed", "4", "--duration", "140s", "--fault", "F2@40s"])
-        .arg("--model")
-        .arg(&model)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("the virtual PLC starts");
-    let mut plc_err = BufReader::new(plc.stderr.take().expect("stderr"));
-    let mut first = String::new();
-    plc_err.read_line(&mut first).expect("a first line");
-    let port: u16 = first
-        .split("127.0.0.1:")
-        .nth(1)
-        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("no port in: {first}"));
-
-    let mut mon = Lines::spawn(
-        Command::new(bin)
-            .args(["monitor", "--plant"])
-            .arg(run.join("plant.toml"))
-            .arg("--model")
-            .arg(&model)
-            .args(["--modbus", &format!("127.0.0.1:{port}")])
-            .args(["--speed", "4", "--duration", "33s"]),
-    );
+    let (_dir, run_plant, model) = learned_virtual_plc();
+    let (plc, port) = virtual_plc(model, "140s", Some("F2@40s"));
+    let mut mon = monitor_at_4x(run_plant, model, port, "33s");
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(30));
     let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
     assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
@@ -354,9 +300,11 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
     assert!(err.contains("flags written to the PLC: def_C4"), "{err}");
 
     let out = plc.wait_with_output().expect("the virtual PLC ends");
-    let mut rest = String::new();
-    plc_err.read_to_string(&mut rest).expect("stderr");
-    assert!(out.status.success(), "{first}{rest}");
+    assert!(
+        out.status.success(),
+        "the virtual PLC failed: {:?}",
+        out.status
+    );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON summary");
     let flags = summary["flags"].as_array().expect("flags");
     let def_c4 = flags
@@ -430,6 +378,9 @@ fn learned_virtual_plc() -> &'static (tempfile::TempDir, std::path::PathBuf, std
             .arg(&run)
             .output()
             .expect("simulate runs"));
+        // Polling adds up to half a scan to every edge, and a loaded
+        // machine's scheduling a few milliseconds more (times the speed):
+        // wider guards.
         ok(Command::new(bin)
             .args(["learn", "--margin", "50ms", "--plant"])
             .arg(run.join("plant.toml"))

@@ -300,7 +300,6 @@ struct Run {
     watermark: Option<Time>,
     /// Whether the watermark keeps up with the live clock.
     observed: bool,
-    events: u64,
 }
 
 impl Run {
@@ -382,7 +381,6 @@ impl Run {
         }
         self.advance_to(t);
         self.watermark = Some(t);
-        self.events += n;
         let took = arrived.elapsed();
         self.out.status(|s| {
             s.events += n;
@@ -528,7 +526,6 @@ async fn monitor(
         lost_at: None,
         watermark: None,
         observed: true,
-        events: 0,
     };
     let stop_at = args
         .duration
@@ -626,12 +623,13 @@ fn finish(run: &mut Run, stopped: Option<&str>, knows_ahead: bool) -> Result<(),
             flags.push(f);
         }
     }
-    let (lines, warnings, labels, evidence) = run
+    let (events, lines, warnings, labels, evidence) = run
         .out
         .status
         .lock()
         .map(|s| {
             (
+                s.events,
                 s.verdict_changes,
                 s.warnings,
                 s.latency.clone(),
@@ -640,9 +638,8 @@ fn finish(run: &mut Run, stopped: Option<&str>, knows_ahead: bool) -> Result<(),
         })
         .unwrap_or_default();
     eprintln!(
-        "monitor {}: {} events, {lines} verdict changes, {warnings} warnings; flags: {}",
+        "monitor {}: {events} events, {lines} verdict changes, {warnings} warnings; flags: {}",
         stopped.unwrap_or("source ended"),
-        run.events,
         if flags.is_empty() {
             "none".to_string()
         } else {

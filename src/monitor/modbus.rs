@@ -423,7 +423,8 @@ impl<'a> Session<'a> {
             sent: Instant::now(),
             bits: vec![None; self.blocks.len()],
         });
-        for (block, b) in self.blocks.clone().iter().enumerate() {
+        for block in 0..self.blocks.len() {
+            let b = self.blocks[block];
             let code = match b.table {
                 ModbusTable::Coil => 1,
                 ModbusTable::DiscreteInput => 2,
