@@ -96,7 +96,7 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
         product *= size.states as f64;
         sum += size.states;
         let mut verdicts = check(&mut engine, &compiled, model.time_unit);
-        separate_under_any_order(&mut engine, &mut verdicts, model.time_unit);
+        separate_under_any_order(&engine, &mut verdicts, model.time_unit);
         if let Some(dir) = &args.dot {
             let path = dir.join(format!("{}.diagnoser.dot", engine.part.name));
             fs::write(&path, compiled.to_dot(&engine, model.time_unit))
@@ -190,7 +190,9 @@ fn simplify(
 ) -> Result<Simplified, Failure> {
     let filter = PartFilter::new(plant, &engine.part.names)
         .map_err(|e| bad(format!("part '{}': {e}", engine.part.name)))?;
-    let mut e = engine.clone();
+    // Orders given anywhere would turn elements in mid-stroke everywhere: each
+    // is taken to start a whole stroke, or the exploration would not end.
+    let mut e = diagnoser::diagnosis::Engine::new(engine.part.without_reversals());
     let any = Compiled::explore_with(&mut e, 2, Commands::Any);
     let allows = |before: u32, after: u32| filter.allows(before, after);
     let filtered = Compiled::explore_with(&mut e, 2, Commands::Filter(&allows));

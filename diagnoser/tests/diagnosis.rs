@@ -129,7 +129,7 @@ fn a_control_that_waits_for_a_withheld_sensor_hides_what_a_running_plant_shows()
             .all(|w| w.until.is_none()),
         "{verdicts:?}"
     );
-    separate_under_any_order(&mut engine, &mut verdicts, TimeUnit::Ms);
+    separate_under_any_order(&engine, &mut verdicts, TimeUnit::Ms);
     let of = |l: &str| verdicts.iter().find(|v| v.label == l).expect("verdict");
     // Releasing the turntable with the plate at C5 (or ordering it with the
     // plate at C4) brings a moving plate back in time; a blocked one stays.
@@ -262,10 +262,24 @@ fn fixture_labels(
     events: &[(i64, &str, bool)],
     end: i64,
 ) -> Vec<String> {
+    fixture_labels_with_model(name, edit, &|m| m, on, events, end)
+}
+
+/// [`fixture_labels`], with the model's text edited by `edit_model`.
+fn fixture_labels_with_model(
+    name: &str,
+    edit: &dyn Fn(String) -> String,
+    edit_model: &dyn Fn(String) -> String,
+    on: &[&str],
+    events: &[(i64, &str, bool)],
+    end: i64,
+) -> Vec<String> {
     let dir = "diagnoser/tests/fixtures/diagnosis";
     let text = std::fs::read_to_string(repo(&format!("{dir}/{name}.toml"))).expect("plant");
     let plant = Plant::parse(&edit(text), Path::new(name)).expect("plant parses");
-    let model = Model::from_path(&repo(&format!("{dir}/{name}-model.json"))).expect("model");
+    let path = repo(&format!("{dir}/{name}-model.json"));
+    let text = std::fs::read_to_string(&path).expect("model");
+    let model = Model::parse(&edit_model(text), &path).expect("model parses");
     let mut d =
         PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
     let ms = diagnoser::MS;
@@ -354,6 +368,12 @@ fn a_stuck_switch_keeps_its_label_when_the_control_it_misleads_gives_a_pulse() {
     late[13].0 = 588_960;
     let labels = fixture_labels("table", &|t| t, &["B103"], &late, 600_000);
     assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+    // The same where the model times that edge from the last command, which
+    // the release restarted: the edge still comes within its window.
+    let command_clock = |m: String| m.replace("\"clock\": \"RE(Y103)\"", "\"clock\": \"command\"");
+    let labels =
+        fixture_labels_with_model("table", &|t| t, &command_clock, &["B103"], &events, 600_000);
+    assert!(labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
 }
 
 #[test]
@@ -489,4 +509,106 @@ fn a_poll_that_sees_two_plc_scans_at_once_stays_normal() {
     // ...read as polls, every one is two scans seen at once.
     let (_, as_polls) = merged_scans_verdicts(true);
     assert!(as_polls.is_empty(), "{merged} merges: {as_polls:#?}");
+}
+
+#[test]
+fn a_stuck_switch_keeps_its_label_when_the_table_it_turned_back_arrives_early() {
+    // B103 sticks at 1 half-way to the loading position: the control releases
+    // Y103 and turns the table back to B104 at once. Coming back from
+    // half-way, it reaches B104 sooner than any learned turn (2538 ms and more).
+    let events = |arrival: i64| {
+        [
+            (1000, "Y102", true),
+            (1060, "B103", false),
+            (3860, "Y102", false),
+            (3860, "B104", true),
+            (9000, "Y103", true),
+            (9070, "B104", false),
+            (10_200, "Y103", false),
+            (10_200, "B103", true),
+            (10_400, "Y102", true),
+            (arrival, "Y102", false),
+            (arrival, "B104", true),
+        ]
+    };
+    let labels = fixture_labels("table", &|t| t, &["B103"], &events(11_800), 20_000);
+    assert!(labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+    // Sooner, never later: past the learned turn's latest time, the stuck
+    // switch no longer explains the arrival.
+    let labels = fixture_labels("table", &|t| t, &["B103"], &events(13_600), 20_000);
+    assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+}
+
+#[test]
+fn an_unexpected_fall_hides_the_edge_the_control_releases_the_table_on() {
+    // The table reaches the loading position at 12 550 ms, but B103 shows 0
+    // for 100 ms more: the control releases Y103 only when it sees B103, after
+    // the learned turn's latest time (3602 ms after the order).
+    let edit = |t: String| {
+        t.replace(
+            "[faults]\n",
+            "[faults]\n\"B103.unexpected_fall\" = \"unexpected_fall(B103)\"\n",
+        )
+    };
+    let events = [
+        (1000, "Y102", true),
+        (1060, "B103", false),
+        (3860, "Y102", false),
+        (3860, "B104", true),
+        (9000, "Y103", true),
+        (9070, "B104", false),
+        (12_650, "Y103", false),
+        (12_650, "B103", true),
+    ];
+    let labels = fixture_labels("table", &edit, &["B103"], &events, 20_000);
+    assert!(
+        labels.contains(&"B103.unexpected_fall".to_string()),
+        "{labels:?}"
+    );
+}
+
+#[test]
+fn an_unexpected_fall_hides_an_end_switch_among_the_edges_of_one_scan() {
+    // The unloader reaches its extended switch B107 as the next machine takes
+    // the workpiece (B108 falls), but B107 shows 0 for 50 ms more: the control
+    // releases Y106 only then. The learned scan has all three edges at once.
+    let events = [
+        (1000, "Y106", true),
+        (1020, "B106", false),
+        (1910, "B108", false),
+        (1960, "Y106", false),
+        (1960, "B107", true),
+        (1980, "B107", false),
+        (2600, "B106", true),
+    ];
+    let labels = fixture_labels("unloader", &|t| t, &["B106", "B108"], &events, 4000);
+    assert!(
+        labels.contains(&"B107.unexpected_fall".to_string()),
+        "{labels:?}"
+    );
+}
+
+#[test]
+fn a_stuck_switch_keeps_its_label_when_the_cylinder_it_releases_springs_back_at_once() {
+    // B103 (extended) sticks at 1 while the ejector rests: when the control
+    // extends it, it sees it out already and releases it one scan later. The
+    // spring brings it back from where it had got to, long before a whole
+    // return stroke (189 ms and more). The model saw the release only with
+    // B103's rise.
+    let events = |back: i64| {
+        [
+            (1000, "B103", true),
+            (20_000, "B101", false),
+            (20_000, "Y101", true),
+            (20_010, "Y101", false),
+            (20_010, "B102", false),
+            (back, "B102", true),
+        ]
+    };
+    let on = ["B102", "B101"];
+    let labels = fixture_labels("ejector", &|t| t, &on, &events(20_020), 30_000);
+    assert!(labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
+    // Past a whole return stroke's latest time, it is not explained.
+    let labels = fixture_labels("ejector", &|t| t, &on, &events(20_400), 30_000);
+    assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
 }

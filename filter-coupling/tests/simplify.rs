@@ -21,6 +21,8 @@ fn plant() -> Plant {
     Plant::from_path(&repo("datasets/plants/sorting.toml")).expect("plant")
 }
 
+/// The parts' engines as `check --filter` explores them: orders come
+/// anywhere, each starting a whole stroke.
 fn engines(plant: &Plant) -> Vec<Engine> {
     let model = Model::from_path(&repo(
         "diagnoser/tests/fixtures/diagnosis/sorting-model.json",
@@ -29,7 +31,9 @@ fn engines(plant: &Plant) -> Vec<Engine> {
     PlantDiagnoser::new(plant, &model, &DiagnoserOptions::default())
         .expect("diagnoser")
         .engines()
-        .to_vec()
+        .iter()
+        .map(|e| Engine::new(e.part.without_reversals()))
+        .collect()
 }
 
 fn engine(plant: &Plant, part: &str) -> Engine {

@@ -213,7 +213,7 @@ fn learned_order(part: &super::part::PartDiagnoser, obs: u32, ch: u32) -> bool {
 /// [`Waiting::until`] and [`Waiting::orders_outside_control`] (e.g. releasing
 /// A4 brings a moving plate back to C4, and a blocked one does not).
 pub fn separate_under_any_order(
-    engine: &mut Engine,
+    learned: &Engine,
     verdicts: &mut [FaultDiagnosability],
     unit: TimeUnit,
 ) {
@@ -221,6 +221,11 @@ pub fn separate_under_any_order(
     if !verdicts.iter().any(wanted) {
         return;
     }
+    // Orders given anywhere would turn elements in mid-stroke everywhere, and
+    // the exploration would not end: the search takes each order to start a
+    // whole stroke (see `PartDiagnoser::without_reversals`).
+    let mut any_engine = Engine::new(learned.part.without_reversals());
+    let engine = &mut any_engine;
     let any = Compiled::explore_with(engine, 2, Commands::Any);
     let successors = Successors::new(engine, &any);
     for v in verdicts.iter_mut().filter(|v| wanted(v)) {
@@ -228,8 +233,12 @@ pub fn separate_under_any_order(
             continue;
         };
         let f = w.silent.fault.mode;
+        let silent = learned.state(w.silent.state);
         let Some(node) = any.graph.node_indices().find(|&i| {
-            any.graph[i].state == w.silent.state && any.graph[i].readings == w.silent.readings
+            let here = engine.state(any.graph[i].state);
+            any.graph[i].readings == w.silent.readings
+                && here.obs == silent.obs
+                && here.hyps == silent.hyps
         }) else {
             continue;
         };

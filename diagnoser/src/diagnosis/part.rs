@@ -127,7 +127,8 @@ pub struct Mode {
 pub struct Hypothesis {
     /// Index in [`PartDiagnoser::modes`] (0 is normal).
     pub mode: u16,
-    /// [`Hypothesis::GLITCH`], [`Hypothesis::UNTIMED`] and [`Hypothesis::STARTED`].
+    /// [`Hypothesis::GLITCH`], [`Hypothesis::UNTIMED`], [`Hypothesis::STARTED`]
+    /// and [`Hypothesis::SOONER`].
     pub flags: u8,
     /// While a glitch shows: [`Hypothesis::SEEN`] if it began with an observed
     /// edge, else the model transition it hid as it began (its deadline counts
@@ -149,6 +150,12 @@ impl Hypothesis {
     /// after it began): the motion that order started may still show its first
     /// edge. Holds until the part's next scan.
     pub const STARTED: u8 = 4;
+    /// The control has given an order in transit that the model never saw it
+    /// give there alone, so the element may have turned in mid-stroke: its
+    /// motions may end sooner than learned, never later. Guards' lower bounds
+    /// are not enforced, their upper bounds and deadlines are. Holds until a
+    /// sensor edge of the model dates the element again.
+    pub const SOONER: u8 = 8;
 
     /// [`Hypothesis::since`] of a glitch that began with an observed edge.
     pub const SEEN: u16 = u16::MAX;
@@ -209,6 +216,13 @@ pub struct PartDiagnoser {
     /// Longest an unexpected edge (a glitch) shows before the sensor reads its
     /// real value again, in nanoseconds.
     glitch_max: Time,
+    /// Per clock, the latest lower bound of a timed transition guarded by it:
+    /// past it on every clock, [`Hypothesis::SOONER`] changes nothing.
+    latest_lo: Vec<Time>,
+    /// Whether an order given in transit may turn the element in mid-stroke
+    /// ([`Hypothesis::SOONER`]), and a withdrawn order's first edge is read on
+    /// any clock (see [`Self::started_motion`]).
+    reversals: bool,
 }
 
 /// Why a part's diagnoser cannot be built.
@@ -393,7 +407,14 @@ impl PartDiagnoser {
                 partitions.len()
             ));
         }
+        let mut latest_lo = vec![0; clocks.len()];
+        for m in moves.iter().flatten().filter(|m| m.timed) {
+            let l = &mut latest_lo[m.clock as usize];
+            *l = (*l).max(m.lo);
+        }
         Ok(PartDiagnoser {
+            reversals: true,
+            latest_lo,
             inputs,
             name: part.name.clone(),
             signals,
@@ -411,6 +432,16 @@ impl PartDiagnoser {
             windows,
             glitch_max,
         })
+    }
+
+    /// The same diagnoser, where every order starts a whole stroke and a
+    /// withdrawn order's first edge is timed from the order alone: for
+    /// explorations where orders come anywhere, which would not end otherwise.
+    pub fn without_reversals(&self) -> PartDiagnoser {
+        PartDiagnoser {
+            reversals: false,
+            ..self.clone()
+        }
     }
 
     /// Bits of the actuators in a state vector.
@@ -535,7 +566,21 @@ impl PartDiagnoser {
         !m.timed
             || self
                 .reading(h, m.clock, readings)
-                .is_none_or(|c| m.lo <= c && c <= m.hi)
+                .is_none_or(|c| self.lower_bound(h, m) <= c && c <= m.hi)
+    }
+
+    /// Whether every clock `h` reads is past every lower bound on it.
+    fn lower_bounds_passed(&self, h: Hypothesis, readings: &Readings) -> bool {
+        (0..self.clocks.len()).all(|c| {
+            self.reading(h, c as u8, readings)
+                .is_none_or(|r| r >= self.latest_lo[c])
+        })
+    }
+
+    /// The earliest reading of `m`'s clock at which `h` takes `m`: none when
+    /// `h`'s element may have turned in mid-stroke.
+    fn lower_bound(&self, h: Hypothesis, m: &Move) -> Time {
+        if h.has(Hypothesis::SOONER) { 0 } else { m.lo }
     }
 
     /// Whether `m` cannot follow, in the same scan, the transitions of `h`
@@ -553,11 +598,14 @@ impl PartDiagnoser {
         let Some(Clock::Edge { bit, rising }) = self.clocks.get(m.clock as usize) else {
             return false;
         };
-        m.lo > 0 && moved >> bit & 1 == 1 && (h.phys >> bit & 1 == 1) == *rising
+        self.lower_bound(h, m) > 0 && moved >> bit & 1 == 1 && (h.phys >> bit & 1 == 1) == *rising
     }
 
     fn may_have_happened(&self, h: Hypothesis, m: &Move, readings: &Readings) -> bool {
-        !m.timed || self.reading(h, m.clock, readings).is_none_or(|c| m.lo <= c)
+        !m.timed
+            || self
+                .reading(h, m.clock, readings)
+                .is_none_or(|c| self.lower_bound(h, m) <= c)
     }
 
     /// Whether `h` has outstayed its state: every expected event's deadline passed.
@@ -698,6 +746,8 @@ impl PartDiagnoser {
                                     phys: h.phys ^ sensed,
                                     ..h
                                 });
+                            } else if sensed.count_ones() == 1 {
+                                self.hidden_by_glitch(h, m.id, sensed, &mut extra);
                             }
                         } else if m.changed & !dec == 0 {
                             extra.push(Hypothesis {
@@ -705,7 +755,7 @@ impl PartDiagnoser {
                                 ..h
                             });
                         } else if m.changed.count_ones() == 1 {
-                            self.hidden_by_glitch(h, m, &mut extra);
+                            self.hidden_by_glitch(h, m.id, m.changed, &mut extra);
                         }
                     }
                 }
@@ -718,15 +768,22 @@ impl PartDiagnoser {
             }
         }
         hyps.retain(|&h| !self.expired(h, readings));
+        for h in hyps.iter_mut() {
+            if h.has(Hypothesis::SOONER) && self.lower_bounds_passed(*h, readings) {
+                h.flags &= !Hypothesis::SOONER;
+            }
+        }
         hyps.sort_unstable();
         hyps.dedup();
     }
 
     /// A real edge of a sensor that a glitch hides as it starts: the reading
     /// keeps the old value, which is the glitch's value (seed 002's unexpected
-    /// rise or fall, beginning just as the real value leaves it).
-    fn hidden_by_glitch(&self, h: Hypothesis, hidden: &Move, out: &mut Vec<Hypothesis>) {
-        let changed = hidden.changed;
+    /// rise or fall, beginning just as the real value leaves it). `changed` is
+    /// the sensor's bit, moved by transition `id`; when that transition also
+    /// holds the control's reaction, the reaction does not come, since the
+    /// control reads the glitch.
+    fn hidden_by_glitch(&self, h: Hypothesis, id: usize, changed: u32, out: &mut Vec<Hypothesis>) {
         let own = self.modes[h.mode as usize].kind;
         for (m, mode) in self.modes.iter().enumerate() {
             let ModeKind::Glitch { bit, value } = mode.kind else {
@@ -739,9 +796,53 @@ impl PartDiagnoser {
                 out.push(Hypothesis {
                     mode: m as u16,
                     flags: h.flags | Hypothesis::GLITCH,
-                    since: hidden.id as u16,
+                    since: id as u16,
                     phys: h.phys ^ changed,
                 });
+            }
+        }
+    }
+
+    /// The edges of transition `m` that show while a glitch beginning now hides
+    /// one of them, as in [`Self::hidden_by_glitch`] but among other edges
+    /// (the arm reaches its end switch as the workpiece leaves). The control
+    /// reads the glitch, so its reaction in `m` does not come.
+    #[allow(clippy::too_many_arguments)]
+    fn hidden_amid(
+        &self,
+        h: Hypothesis,
+        m: &Move,
+        rest: u32,
+        moved: u32,
+        after: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        let sensed = m.changed & !self.act_mask;
+        if sensed & self.frozen_bits(h) != 0
+            || !self.admits(h, m, readings)
+            || self.too_soon(h, m, moved)
+        {
+            return;
+        }
+        let own = self.modes[h.mode as usize].kind;
+        let dec = self.decoupled(h);
+        for (k, mode) in self.modes.iter().enumerate() {
+            let ModeKind::Glitch { bit, value } = mode.kind else {
+                continue;
+            };
+            let may_start = (h.mode == 0 || (own == mode.kind && !h.has(Hypothesis::GLITCH)))
+                && sensed >> bit & 1 == 1
+                && (h.phys >> bit & 1 == 1) == value;
+            let visible = sensed & !(1 << bit) & !dec;
+            if may_start && visible != 0 && visible & !rest == 0 {
+                let next = Hypothesis {
+                    mode: k as u16,
+                    flags: (h.flags | Hypothesis::GLITCH) & !Hypothesis::SOONER,
+                    since: m.id as u16,
+                    phys: h.phys ^ sensed,
+                };
+                self.explain(next, rest & !visible, moved | sensed, after, readings, out);
             }
         }
     }
@@ -790,7 +891,7 @@ impl PartDiagnoser {
                         // prompted does not reach the plant.
                         let mut r = Hypothesis {
                             phys: h.phys ^ (changed & !orders),
-                            flags: h.flags & !Hypothesis::STARTED,
+                            flags: h.flags & !(Hypothesis::STARTED | Hypothesis::SOONER),
                             ..h
                         };
                         r.phys ^= self.apply_orders(&mut r, orders);
@@ -804,12 +905,8 @@ impl PartDiagnoser {
                 r.flags &= !Hypothesis::STARTED;
                 if orders != 0 {
                     let applied = self.apply_orders(&mut r, orders);
-                    if r.mode != 0
-                        && !self.frozen(r)
-                        && applied != 0
-                        && !self.learned_order(r.phys, applied)
-                    {
-                        r.flags |= Hypothesis::STARTED;
+                    if r.mode != 0 && !self.frozen(r) && applied != 0 {
+                        r.flags |= self.misled(r.phys, applied);
                     }
                     r.phys ^= applied;
                 }
@@ -860,6 +957,9 @@ impl PartDiagnoser {
                         // does a reaction the control already shows, on an
                         // actuator stuck where the reaction would put it.
                         let sensed = m.changed & !self.act_mask;
+                        if sensed.count_ones() >= 2 {
+                            self.hidden_amid(h, m, rest, moved, after, readings, out);
+                        }
                         let physical = if !m.command {
                             m.changed
                         } else if sensed & dec != 0 || self.reaction_shown(h, m, after) {
@@ -871,8 +971,10 @@ impl PartDiagnoser {
                             && self.admits(h, m, readings)
                             && !self.too_soon(h, m, moved)
                         {
+                            // The edge dates the element again.
                             let next = Hypothesis {
                                 phys: h.phys ^ physical,
+                                flags: h.flags & !Hypothesis::SOONER,
                                 ..h
                             };
                             let moved = moved | physical;
@@ -982,6 +1084,34 @@ impl PartDiagnoser {
             .then_some(visible)
     }
 
+    /// What a fault hypothesis must allow for when the control, misled by the
+    /// fault, gives `orders` in the physical state `phys`:
+    /// [`Hypothesis::STARTED`] if the model never saw them given there, and
+    /// [`Hypothesis::SOONER`] if the element may be in transit and the model
+    /// never saw them given there without the sensor edges that end the
+    /// transit (a cylinder released half-way out, when the control thought it
+    /// out).
+    fn misled(&self, phys: u32, orders: u32) -> u8 {
+        let mut flags = 0;
+        if !self.learned_order(phys, orders) {
+            flags |= Hypothesis::STARTED;
+        }
+        let alone = self
+            .model_state(phys)
+            .is_some_and(|s| self.moves[s].iter().any(|m| m.changed == orders));
+        if self.reversals && !alone && self.in_transit(phys) {
+            flags |= Hypothesis::SOONER;
+        }
+        flags
+    }
+
+    /// Whether an element may be between two positions in the physical state
+    /// `phys`: the model must see a sensor edge to leave it, or never saw it.
+    fn in_transit(&self, phys: u32) -> bool {
+        self.model_state(phys)
+            .is_none_or(|s| self.expected[s].iter().any(|&k| !self.moves[s][k].command))
+    }
+
     /// Whether the model saw the control give `orders` in the physical state `phys`.
     fn learned_order(&self, phys: u32, orders: u32) -> bool {
         self.model_state(phys).is_some_and(|s| {
@@ -994,7 +1124,7 @@ impl PartDiagnoser {
     /// The first edge of a motion whose order the control withdrew in a state
     /// where it never does (see [`Hypothesis::STARTED`]): the element had
     /// started, and the edge the order leads to first still comes, in its
-    /// learned window from the order (any time, if `h` is untimed already).
+    /// learned window (any time, if `h` is untimed already).
     /// `h` is back in the state the order was given from; what follows is the
     /// model's no more, so it goes untimed.
     fn started_motion(
@@ -1019,9 +1149,16 @@ impl PartDiagnoser {
                 rising: given >> a & 1 == 1,
             };
             for m in &self.moves[s] {
+                // On whatever clock the model learned it: the order's own, or
+                // one the withdrawal restarted (the command clock), which reads
+                // less than the time since the order and so only loosens the
+                // window's upper bound; the lower one is waived in transit
+                // (`Hypothesis::SOONER`). Without reversals, on the order's
+                // own clock only.
+                let clock = self.clocks.get(m.clock as usize);
                 if !m.command
                     && m.timed
-                    && self.clocks.get(m.clock as usize) == Some(&order)
+                    && (self.reversals || clock == Some(&order))
                     && let Some(visible) = self.shown_part(h, m.changed, rest)
                     && self.admits(h, m, readings)
                 {
@@ -1105,6 +1242,12 @@ impl PartDiagnoser {
             if h.has(Hypothesis::UNTIMED) {
                 continue;
             }
+            if h.has(Hypothesis::SOONER) {
+                for (c, &l) in self.latest_lo.iter().enumerate() {
+                    timers[c].push(l);
+                    all[c].push(l);
+                }
+            }
             let Some(s) = self.model_state(h.phys) else {
                 continue;
             };
@@ -1121,7 +1264,7 @@ impl PartDiagnoser {
                 // Hidden by the fault, or by a glitch that may start now
                 // (see `hidden_by_glitch`).
                 let hidden = sensed & !dec == 0
-                    || (glitches && !h.has(Hypothesis::GLITCH) && m.changed.count_ones() == 1);
+                    || (glitches && !h.has(Hypothesis::GLITCH) && sensed.count_ones() == 1);
                 if sensed != 0 && hidden {
                     timers[c].push(m.lo);
                 }
