@@ -309,18 +309,33 @@ fn fixture_labels_with_model(
         .map_or_else(|| vec!["N".to_string()], |v| v.labels.clone())
 }
 
+/// The table of `fixtures/diagnosis/table.toml`, from the loading position
+/// (B103): turned to the work position, where it is at 3860 ms.
+const TABLE_TO_WORK: [(i64, &str, bool); 4] = [
+    (1000, "Y102", true),
+    (1060, "B103", false),
+    (3860, "Y102", false),
+    (3860, "B104", true),
+];
+
+/// [`TABLE_TO_WORK`], then ordered back to the loading position at 9000 ms:
+/// in transit from 9070 ms.
+const TABLE_TO_LOADING: [(i64, &str, bool); 6] = [
+    TABLE_TO_WORK[0],
+    TABLE_TO_WORK[1],
+    TABLE_TO_WORK[2],
+    TABLE_TO_WORK[3],
+    (9000, "Y103", true),
+    (9070, "B104", false),
+];
+
 #[test]
 fn a_valve_stuck_on_keeps_its_label_when_the_control_releases_it_on_arrival() {
     // The table turns to the work position; the control releases Y102 in the
     // scan B104 rises, but the valve stays on. Ordered back, the table does
     // not leave B104: both valves push.
-    let events = [
-        (1000, "Y102", true),
-        (1060, "B103", false),
-        (3860, "Y102", false),
-        (3860, "B104", true),
-        (9000, "Y103", true),
-    ];
+    let mut events = TABLE_TO_WORK.to_vec();
+    events.push((9000, "Y103", true));
     let labels = fixture_labels("table", &|t| t, &["B103"], &events, 12_000);
     assert!(
         labels.contains(&"Y102.actuator_stuck1".to_string()),
@@ -381,14 +396,8 @@ fn a_valve_stuck_on_turns_the_table_to_where_the_control_would_have_released_it(
     // Y103 sticks on while the table rests at the work position: the table
     // turns to the loading position unordered, and the control has no order to
     // withdraw when B103 rises.
-    let events = [
-        (1000, "Y102", true),
-        (1060, "B103", false),
-        (3860, "Y102", false),
-        (3860, "B104", true),
-        (6000, "B104", false),
-        (9200, "B103", true),
-    ];
+    let mut events = TABLE_TO_WORK.to_vec();
+    events.extend([(6000, "B104", false), (9200, "B103", true)]);
     let labels = fixture_labels("table", &|t| t, &["B103"], &events, 10_000);
     assert!(
         labels.contains(&"Y103.actuator_stuck1".to_string()),
@@ -517,19 +526,15 @@ fn a_stuck_switch_keeps_its_label_when_the_table_it_turned_back_arrives_early() 
     // Y103 and turns the table back to B104 at once. Coming back from
     // half-way, it reaches B104 sooner than any learned turn (2538 ms and more).
     let events = |arrival: i64| {
-        [
-            (1000, "Y102", true),
-            (1060, "B103", false),
-            (3860, "Y102", false),
-            (3860, "B104", true),
-            (9000, "Y103", true),
-            (9070, "B104", false),
+        let mut events = TABLE_TO_LOADING.to_vec();
+        events.extend([
             (10_200, "Y103", false),
             (10_200, "B103", true),
             (10_400, "Y102", true),
             (arrival, "Y102", false),
             (arrival, "B104", true),
-        ]
+        ]);
+        events
     };
     let labels = fixture_labels("table", &|t| t, &["B103"], &events(11_800), 20_000);
     assert!(labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
@@ -550,16 +555,8 @@ fn an_unexpected_fall_hides_the_edge_the_control_releases_the_table_on() {
             "[faults]\n\"B103.unexpected_fall\" = \"unexpected_fall(B103)\"\n",
         )
     };
-    let events = [
-        (1000, "Y102", true),
-        (1060, "B103", false),
-        (3860, "Y102", false),
-        (3860, "B104", true),
-        (9000, "Y103", true),
-        (9070, "B104", false),
-        (12_650, "Y103", false),
-        (12_650, "B103", true),
-    ];
+    let mut events = TABLE_TO_LOADING.to_vec();
+    events.extend([(12_650, "Y103", false), (12_650, "B103", true)]);
     let labels = fixture_labels("table", &edit, &["B103"], &events, 20_000);
     assert!(
         labels.contains(&"B103.unexpected_fall".to_string()),

@@ -784,23 +784,30 @@ impl PartDiagnoser {
     /// holds the control's reaction, the reaction does not come, since the
     /// control reads the glitch.
     fn hidden_by_glitch(&self, h: Hypothesis, id: usize, changed: u32, out: &mut Vec<Hypothesis>) {
+        for (mode, _) in self.glitches_hiding(h, changed) {
+            out.push(Hypothesis {
+                mode,
+                flags: h.flags | Hypothesis::GLITCH,
+                since: id as u16,
+                phys: h.phys ^ changed,
+            });
+        }
+    }
+
+    /// The glitch modes that may begin now under `h` by hiding the real edge
+    /// of one of the sensors `edges`, with that sensor's bit: the reading
+    /// keeps the old value, which is the glitch's.
+    fn glitches_hiding(&self, h: Hypothesis, edges: u32) -> impl Iterator<Item = (u16, u8)> + '_ {
         let own = self.modes[h.mode as usize].kind;
-        for (m, mode) in self.modes.iter().enumerate() {
+        self.modes.iter().enumerate().filter_map(move |(m, mode)| {
             let ModeKind::Glitch { bit, value } = mode.kind else {
-                continue;
+                return None;
             };
             let may_start = (h.mode == 0 || (own == mode.kind && !h.has(Hypothesis::GLITCH)))
-                && changed == 1 << bit
+                && edges >> bit & 1 == 1
                 && (h.phys >> bit & 1 == 1) == value;
-            if may_start {
-                out.push(Hypothesis {
-                    mode: m as u16,
-                    flags: h.flags | Hypothesis::GLITCH,
-                    since: id as u16,
-                    phys: h.phys ^ changed,
-                });
-            }
-        }
+            may_start.then_some((m as u16, bit))
+        })
     }
 
     /// The edges of transition `m` that show while a glitch beginning now hides
@@ -825,19 +832,12 @@ impl PartDiagnoser {
         {
             return;
         }
-        let own = self.modes[h.mode as usize].kind;
         let dec = self.decoupled(h);
-        for (k, mode) in self.modes.iter().enumerate() {
-            let ModeKind::Glitch { bit, value } = mode.kind else {
-                continue;
-            };
-            let may_start = (h.mode == 0 || (own == mode.kind && !h.has(Hypothesis::GLITCH)))
-                && sensed >> bit & 1 == 1
-                && (h.phys >> bit & 1 == 1) == value;
+        for (mode, bit) in self.glitches_hiding(h, sensed) {
             let visible = sensed & !(1 << bit) & !dec;
-            if may_start && visible != 0 && visible & !rest == 0 {
+            if visible != 0 && visible & !rest == 0 {
                 let next = Hypothesis {
-                    mode: k as u16,
+                    mode,
                     flags: (h.flags | Hypothesis::GLITCH) & !Hypothesis::SOONER,
                     since: m.id as u16,
                     phys: h.phys ^ sensed,
@@ -951,15 +951,15 @@ impl PartDiagnoser {
             match self.model_state(h.phys) {
                 Some(s) => {
                     for m in &self.moves[s] {
+                        let sensed = m.changed & !self.act_mask;
+                        if sensed.count_ones() >= 2 {
+                            self.hidden_amid(h, m, rest, moved, after, readings, out);
+                        }
                         // The control's reaction to a sensor edge it cannot see
                         // does not come; the edges themselves still happen, the
                         // hidden ones with the visible ones (as in `close`). Nor
                         // does a reaction the control already shows, on an
                         // actuator stuck where the reaction would put it.
-                        let sensed = m.changed & !self.act_mask;
-                        if sensed.count_ones() >= 2 {
-                            self.hidden_amid(h, m, rest, moved, after, readings, out);
-                        }
                         let physical = if !m.command {
                             m.changed
                         } else if sensed & dec != 0 || self.reaction_shown(h, m, after) {
