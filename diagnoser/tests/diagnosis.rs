@@ -609,3 +609,104 @@ fn a_stuck_switch_keeps_its_label_when_the_cylinder_it_releases_springs_back_at_
     let labels = fixture_labels("ejector", &|t| t, &on, &events(20_400), 30_000);
     assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
 }
+
+/// The ejector of `fixtures/diagnosis/ejector.toml` pushes out the last
+/// workpiece of its magazine (B101, "magazine empty", rises 20 ms after the
+/// order) and is released as it arrives (1300 ms); then the operator refills
+/// the magazine at `refill` ms, and the ejector is back in at 1520 ms.
+fn ejector_refilled_at(refill: i64) -> Vec<(i64, &'static str, bool)> {
+    let mut events = vec![
+        (1000, "Y101", true),
+        (1010, "B102", false),
+        (1020, "B101", true),
+        (1300, "Y101", false),
+        (1300, "B103", true),
+        (1310, "B103", false),
+        (1520, "B102", true),
+    ];
+    events.push((refill, "B101", false));
+    events.sort_by_key(|e| e.0);
+    events
+}
+
+#[test]
+fn a_refill_during_a_stroke_is_normal() {
+    // The learning logs only showed refills while the ejector rested.
+    let labels = fixture_labels(
+        "ejector",
+        &|t| t,
+        &["B102"],
+        &ejector_refilled_at(1400),
+        5000,
+    );
+    assert_eq!(labels, ["N"]);
+}
+
+#[test]
+fn a_refill_in_the_scan_the_control_releases_the_ejector_is_normal() {
+    // Two transitions of the model in one scan: the refill, and the control's
+    // reaction to the extended switch.
+    let labels = fixture_labels(
+        "ejector",
+        &|t| t,
+        &["B102"],
+        &ejector_refilled_at(1300),
+        5000,
+    );
+    assert_eq!(labels, ["N"]);
+}
+
+#[test]
+fn a_workpiece_ready_before_the_control_reacts_is_normal() {
+    // The pusher of `fixtures/diagnosis/pusher.toml` always extended in the
+    // scan its workpiece sensor B305 rose; here the control waits 7 s (for a
+    // condition outside the part) before it pushes.
+    let events = [
+        (1000, "B305", true),
+        (8000, "Y301", true),
+        (8005, "B304", false),
+        (8170, "B305", false),
+        (8250, "Y301", false),
+        (8450, "B304", true),
+    ];
+    assert_eq!(
+        fixture_labels("pusher", &|t| t, &["B304"], &events, 20_000),
+        ["N"]
+    );
+}
+
+#[test]
+fn a_valve_stuck_on_extends_the_loader_without_the_controls_reaction() {
+    // The extending valve of `fixtures/diagnosis/loader.toml` sticks on while
+    // the loader rests with a workpiece at its input: it pushes the workpiece
+    // out and extends, and the control, which never ordered it, does not
+    // switch the valves over at the end as it learned to.
+    let events = [
+        (10_000, "B302", false),
+        (10_006, "B301", false),
+        (10_182, "B303", true),
+    ];
+    let labels = fixture_labels("loader", &|t| t, &["B302", "B301"], &events, 15_000);
+    assert!(
+        labels.contains(&"Y301.actuator_stuck1".to_string()),
+        "{labels:?}"
+    );
+}
+
+#[test]
+fn a_valve_stuck_on_leaves_the_workpiece_sensor_to_the_workpieces() {
+    // The separator of `fixtures/diagnosis/separator.toml` extends by itself
+    // at 10 s; at 23 s a workpiece reaches the input sensor, in a state the
+    // model never saw it do so, and the control orders the extension.
+    let events = [
+        (10_000, "B202", false),
+        (23_000, "Y201", true),
+        (23_000, "B201", true),
+        (24_320, "Y201", false),
+    ];
+    let labels = fixture_labels("separator", &|t| t, &["B202"], &events, 30_000);
+    assert!(
+        labels.contains(&"Y201.actuator_stuck1".to_string()),
+        "{labels:?}"
+    );
+}

@@ -336,12 +336,31 @@ impl Hist {
         spread <= options.timed_spread as f64 || spread <= options.timed_relative * q(0.5)
     }
 
+    /// Whether the outermost durations stay near the bulk: at most three times
+    /// its spread (or two `margin`s, the scan's jitter) beyond `q01`–`q99`.
+    /// Far outliers mean something outside the part sometimes holds the motion
+    /// back (a starved conveyor, the next machine): its time is then the
+    /// product flow's, not the part's own.
+    fn light_tails(&self, margin: Time) -> bool {
+        let s = self.sorted();
+        let q = |p: f64| Hist::quantile(&s, self.n, p);
+        let (min, max) = (s.first().map_or(0, |x| x.0), s.last().map_or(0, |x| x.0));
+        let reach = 3 * (q(0.99) - q(0.01)).max(2 * margin);
+        q(0.01) - min <= reach && max - q(0.99) <= reach
+    }
+
     /// How far beyond its learned logs' means, below and above, a new run's mean
     /// may land: `reach` (relative drift times deviations) around their mean,
     /// scaled for the few logs it is estimated from.
+    /// A transition seen often in one log only still drifts as much as the
+    /// plant's others: its mean over every log stands for that one log.
     fn drift_reach(&self, reach: f64) -> (f64, f64) {
-        let means = self.log_means();
-        if means.len() < 2 || reach <= 0.0 {
+        let mut means = self.log_means();
+        if means.len() < 2 {
+            let sum: i128 = self.logs.iter().map(|&(_, s)| s).sum();
+            means = vec![sum as f64 / self.n.max(1) as f64];
+        }
+        if self.n == 0 || reach <= 0.0 {
             return (0.0, 0.0);
         }
         let k = means.len() as f64;
@@ -361,6 +380,18 @@ impl Hist {
             .collect();
         v.sort_unstable();
         v
+    }
+
+    /// The sample of rank `k` (0 is the smallest).
+    fn nth(sorted: &[(i64, u64)], k: u64) -> i64 {
+        let mut acc = 0;
+        for &(v, c) in sorted {
+            acc += c;
+            if acc > k {
+                return v;
+            }
+        }
+        sorted.last().map_or(0, |&(v, _)| v)
     }
 
     /// The smallest sample `x` with at least `p·n` samples at or below it.
@@ -385,7 +416,14 @@ impl Hist {
         let (lo, hi) = if options.trim > 0.0 {
             (q(options.trim), q(1.0 - options.trim))
         } else {
-            (min, max)
+            // A fresh log's extremes land beyond the learned ones about as far
+            // as the learned tails reach past their last percent: each side
+            // is widened by that reach (nothing, where the samples bunch).
+            let k = (n / 100).max(1);
+            (
+                min - (Hist::nth(&s, k) - min),
+                max + (max - Hist::nth(&s, n.saturating_sub(1 + k))),
+            )
         };
         let widen = widening.margin as f64 + options.margin_relative * (hi - lo) as f64;
         let (below, above) = self.drift_reach(widening.drift);
@@ -636,6 +674,9 @@ impl PartLearner {
     ) -> PartModel {
         let mut untimed = Vec::new();
         let mut transitions: Vec<TransitionModel> = Vec::new();
+        // Whether each transition keeps a regular time on its clock (for an
+        // order alone: whether it is a timer of the control).
+        let mut regular = Vec::with_capacity(self.trans.len());
         for (id, acc) in self.trans.iter().enumerate() {
             let event = self.event_name(acc.changed, acc.to_vec);
             let command = acc.changed & self.act_mask() != 0;
@@ -667,11 +708,18 @@ impl PartLearner {
                 ));
             }
             let guard = hist.guard(options, widening, scale);
-            let timed = sensed && hist.n >= options.min_samples && hist.tight(options);
+            let tight = hist.n >= options.min_samples && hist.tight(options);
+            regular.push(tight && hist.light_tails(widening.margin));
+            let timed = sensed && regular[id];
             if sensed && hist.n > 0 && hist.n < options.min_samples {
                 untimed.push(format!(
                     "{event}: only {} occurrence(s), too few to time",
                     hist.n
+                ));
+            } else if sensed && tight && !timed {
+                untimed.push(format!(
+                    "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}), but {:.0}–{:.0} in all: it sometimes waits for the product flow",
+                    guard.q01, guard.q99, guard.min, guard.max
                 ));
             } else if sensed && hist.n > 0 && !timed {
                 untimed.push(format!(
@@ -780,25 +828,33 @@ impl PartLearner {
                     .iter()
                     .filter(|t| !t.command || (t.timed && sensed(t)))
                     .collect();
-                // A control that may also leave the state by itself (a timeout)
-                // may do so as late as it was seen to: the state's deadline
-                // waits for that order too.
-                let timeouts = out.iter().filter(|t| t.command && !sensed(t));
-                let expected = if sensor_out.iter().all(|t| t.timed) && !sensor_out.is_empty() {
-                    sensor_out
-                        .iter()
-                        .copied()
-                        .chain(timeouts)
-                        .map(|t| Expectation {
-                            transition: t.id,
-                            event: t.event.clone(),
-                            clock: t.clock.clone(),
-                            by: t.guard.hi,
-                        })
-                        .collect()
-                } else {
-                    Vec::new()
-                };
+                // A control that may also leave the state by itself (a timer),
+                // or react to an edge whose time follows the product (an untimed
+                // reaction), may do so as late as it was seen to: the state's
+                // deadline waits for that order too. An order alone at no
+                // regular time waits for something outside the part (the next
+                // machine, a workpiece upstream), for as long as that takes:
+                // the state has no deadline.
+                let timeouts = out.iter().filter(|t| t.command && (!sensed(t) || !t.timed));
+                let waits = out
+                    .iter()
+                    .any(|t| t.command && !sensed(t) && !regular[t.id]);
+                let expected =
+                    if !waits && sensor_out.iter().all(|t| t.timed) && !sensor_out.is_empty() {
+                        sensor_out
+                            .iter()
+                            .copied()
+                            .chain(timeouts)
+                            .map(|t| Expectation {
+                                transition: t.id,
+                                event: t.event.clone(),
+                                clock: t.clock.clone(),
+                                by: t.guard.hi,
+                            })
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
                 StateModel {
                     id,
                     values: (0..self.names.len()).map(|b| v >> b & 1 == 1).collect(),

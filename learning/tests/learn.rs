@@ -315,3 +315,187 @@ fn a_sensor_no_order_moves_is_classified_an_input() {
     assert!(cyl.inputs.is_empty());
     assert_eq!(part(&learn(true), "cyl").inputs, ["R"]);
 }
+
+/// A plant of one cylinder part per name pair `(Y, B)`: order `Y` drives the
+/// end switch `B`.
+fn cylinders_plant(cylinders: &[(&str, &str)]) -> diagnoser::Plant {
+    let mut text = String::from("name = \"c\"\nscan_period_ms = 10\n[signals]\n");
+    for (y, b) in cylinders {
+        text += &format!("{y} = {{ kind = \"actuator\" }}\n{b} = {{ kind = \"sensor\" }}\n");
+    }
+    for (y, b) in cylinders {
+        text += &format!("[[parts]]\nname = \"{y}\"\nactuators = [\"{y}\"]\nsensors = [\"{b}\"]\n");
+    }
+    diagnoser::Plant::parse(&text, std::path::Path::new("c.toml")).expect("plant")
+}
+
+/// One log of timed edges `(ms, signal, value)`, from every signal at 0.
+fn log_of(plant: &diagnoser::Plant, name: &str, edges: &[(i64, &str, bool)]) -> LogStream {
+    let mut events: Vec<diagnoser::Event> = edges
+        .iter()
+        .map(|&(t, s, value)| diagnoser::Event {
+            t: t * MS,
+            signal: plant.signals.id(s).expect("signal"),
+            value,
+        })
+        .collect();
+    events.sort_by_key(|e| e.t);
+    LogStream {
+        path: PathBuf::from(name),
+        format: LogFormat::EventsCsv,
+        time: TimeFormat::Numeric(TimeUnit::Ms),
+        start: 0,
+        initial: vec![false; plant.signals.len()],
+        batches: Box::new(std::iter::once(Ok(events))),
+        end: Default::default(),
+    }
+}
+
+/// Strokes of cylinder `(y, b)`, one per cycle: out in `s` ms, held 1 s, back
+/// in `s` ms, rest 1 s.
+fn strokes(y: &'static str, b: &'static str, strokes: &[i64]) -> Vec<(i64, &'static str, bool)> {
+    let mut t = 1000;
+    let mut edges = Vec::new();
+    for &s in strokes {
+        edges.extend([(t, y, true), (t + s, b, true), (t + s + 1000, y, false)]);
+        edges.push((t + 2 * s + 1000, b, false));
+        t += 2 * s + 2000;
+    }
+    edges
+}
+
+fn learn_logs(plant: &diagnoser::Plant, logs: &[Vec<(i64, &str, bool)>]) -> Model {
+    let mut learner = Learner::new(plant, LearnOptions::default()).expect("learner");
+    for (i, edges) in logs.iter().enumerate() {
+        learner
+            .learn_log(log_of(plant, &format!("run{i}"), edges), |_| {})
+            .expect("learns");
+    }
+    learner.finish()
+}
+
+fn transition<'m>(part: &'m PartModel, event: &str) -> &'m diagnoser::model::TransitionModel {
+    part.transitions
+        .iter()
+        .find(|t| t.event == event)
+        .unwrap_or_else(|| panic!("no {event} in {:?}", part.transitions))
+}
+
+#[test]
+fn a_guard_reaches_beyond_its_extremes_as_far_as_its_tails_do() {
+    let plant = cylinders_plant(&[("Y", "B")]);
+    // 40 strokes: 470 and 480, 36 at 500, 520 and 530 ms.
+    let mut s = vec![470, 480, 520, 530];
+    s.extend([500; 36]);
+    let model = learn_logs(&plant, &[strokes("Y", "B", &s)]);
+    let g = transition(part(&model, "Y"), "RE(B)").guard;
+    // The extremes' distance to the next samples (10 ms), and one scan.
+    assert_eq!((g.lo, g.hi), (450.0, 550.0), "{g:?}");
+}
+
+#[test]
+fn a_transition_with_far_outliers_follows_the_product_flow() {
+    let plant = cylinders_plant(&[("Y", "B")]);
+    let mut s = vec![500; 196];
+    s.extend([510, 510, 3000, 3200]);
+    let model = learn_logs(&plant, &[strokes("Y", "B", &s)]);
+    let cyl = part(&model, "Y");
+    let rise = transition(cyl, "RE(B)");
+    assert!(!rise.timed, "{rise:?}");
+    assert!(
+        cyl.untimed
+            .iter()
+            .any(|u| u.starts_with("RE(B)") && u.contains("waits for the product flow")),
+        "{:?}",
+        cyl.untimed
+    );
+    // The same strokes without the outliers keep their time.
+    let model = learn_logs(&plant, &[strokes("Y", "B", &[500; 200])]);
+    assert!(transition(part(&model, "Y"), "RE(B)").timed);
+}
+
+#[test]
+fn a_transition_seen_in_one_log_only_drifts_as_the_plants_others_do() {
+    let plant = cylinders_plant(&[("Y1", "B1"), ("Y2", "B2")]);
+    // Cylinder 1 strokes in 500 ms in one log and 520 in the other: a drift
+    // between runs of 20/510/sqrt(2). Cylinder 2 moves in the first log only.
+    let mut first = strokes("Y1", "B1", &[500; 40]);
+    first.extend(strokes("Y2", "B2", &[500; 40]));
+    let second = strokes("Y1", "B1", &[520; 40]);
+    let model = learn_logs(&plant, &[first, second]);
+    let g = transition(part(&model, "Y2"), "RE(B2)").guard;
+    // Three deviations of that drift, times sqrt(2) for the one log's own
+    // error, around 500 ms, and one scan: 500 ± (58.81 + 10) ms.
+    let half = 3.0 * (200.0f64 / (510.0 * 510.0)).sqrt() * 500.0 * 2f64.sqrt() + 10.0;
+    assert!(
+        (g.lo - (500.0 - half)).abs() < 0.01 && (g.hi - (500.0 + half)).abs() < 0.01,
+        "{g:?}, expected 500 ± {half}"
+    );
+}
+
+/// Cycles of cylinder `(Y, B)` where the control withdraws the order before
+/// the stroke ends at the times `withdrawn` (ms after the order, one cycle
+/// each; with `edge`, in the scan a sensor `C` rises), between full strokes of
+/// 3 s.
+fn withdrawals(withdrawn: &[i64], edge: bool) -> Vec<(i64, &'static str, bool)> {
+    let mut t = 1000;
+    let mut edges = Vec::new();
+    for &w in withdrawn {
+        edges.extend(
+            strokes("Y", "B", &[3000])
+                .iter()
+                .map(|&(at, s, v)| (at - 1000 + t, s, v)),
+        );
+        t += 8000;
+        edges.extend([(t, "Y", true), (t + w, "Y", false)]);
+        if edge {
+            edges.extend([(t + w, "C", true), (t + w + 500, "C", false)]);
+        }
+        t += 4000;
+    }
+    edges
+}
+
+#[test]
+fn an_order_at_no_regular_time_leaves_its_state_without_deadline() {
+    let plant = diagnoser::Plant::parse(
+        "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
+         B = { kind = \"sensor\" }\nC = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\n\
+         actuators = [\"Y\"]\nsensors = [\"B\", \"C\"]\n",
+        std::path::Path::new("c.toml"),
+    )
+    .expect("plant");
+    let moving = |model: &Model| {
+        let cyl = part(model, "cyl");
+        let state = cyl
+            .states
+            .iter()
+            .find(|s| s.values == [true, false, false])
+            .expect("the stroke's state");
+        state
+            .expected
+            .iter()
+            .map(|e| (e.event.clone(), e.by))
+            .collect::<Vec<_>>()
+    };
+    // Withdrawn at any time from 0.2 to 2.8 s: the control waits for
+    // something outside the part.
+    let any: Vec<i64> = (0..30).map(|k| 200 + k * 2600 / 29).collect();
+    assert_eq!(moving(&learn_logs(&plant, &[withdrawals(&any, false)])), []);
+    // Withdrawn by a timer after 1.5 s: the stroke's end, or the timer.
+    let timer = learn_logs(&plant, &[withdrawals(&[1500; 30], false)]);
+    let expected = moving(&timer);
+    assert_eq!(expected.len(), 2, "{expected:?}");
+    assert!(
+        expected.contains(&("FE(Y)".to_string(), 1510.0)),
+        "{expected:?}"
+    );
+    // Withdrawn at any time, in the scan C rises: the control reacts to an edge
+    // of the product flow, as late as it was seen to (2.8 s, and as far again
+    // as the 2.71 s before it, and one scan).
+    let expected = moving(&learn_logs(&plant, &[withdrawals(&any, true)]));
+    assert!(
+        expected.contains(&("FE(Y) RE(C)".to_string(), 2900.0)),
+        "{expected:?}"
+    );
+}

@@ -199,6 +199,15 @@ pub struct PartDiagnoser {
     /// Bits of the part's input sensors: edges that no order causes, allowed in
     /// any state, and not part of the motion state.
     inputs: u32,
+    /// Bits of the sensors learning found moved from outside the part (see
+    /// `loose_mask`): the control's reaction to their edges may wait for
+    /// conditions outside the part.
+    loose: u32,
+    /// The changes of the model's reactions (orders with sensor edges), each once.
+    reactions: Vec<u32>,
+    /// Bits of the sensors the part's element drives (the plant file's
+    /// `drives`; 0 when it declares none).
+    drives: u32,
     /// Motion state of each known motion vector (a state vector without its
     /// inputs' bits).
     states: HashMap<u32, usize>,
@@ -356,7 +365,17 @@ impl PartDiagnoser {
             });
         }
         let expected = expectations(model, &motion_state, &moves);
-        borrow_moves(&vectors, &mut moves, loose_mask(model, &bit_of) & !inputs);
+        let loose = loose_mask(model, &bit_of) & !inputs;
+        borrow_moves(&vectors, &mut moves, loose);
+        lend_outside_edges(&vectors, &states, &mut moves, loose);
+        let mut reactions: Vec<u32> = moves
+            .iter()
+            .flatten()
+            .map(|m| m.changed)
+            .filter(|&c| c & act_mask != 0 && c & !act_mask != 0)
+            .collect();
+        reactions.sort_unstable();
+        reactions.dedup();
 
         let mut modes = vec![Mode {
             label: "N".to_string(),
@@ -416,6 +435,9 @@ impl PartDiagnoser {
             reversals: true,
             latest_lo,
             inputs,
+            loose,
+            reactions,
+            drives,
             name: part.name.clone(),
             signals,
             names,
@@ -873,34 +895,18 @@ impl PartDiagnoser {
         let after = obs ^ changed;
         let mut out = Vec::new();
         let mut sensed = Vec::new();
-        // An input's edge in the same scan as a command and its sensor edges
-        // comes along with the model's transition.
-        let motion = self.motion(changed);
         for &h in hyps {
-            // A transition of the model that has the command and its sensor
-            // edges in one scan.
-            if orders != 0
-                && motion & !orders != 0
-                && self.decoupled(h) & changed & !self.act_mask == 0
-                && self.frozen_bits(h) & changed == 0
-                && let Some(s) = self.model_state(h.phys)
-            {
-                for m in &self.moves[s] {
-                    if m.changed == motion && self.admits(h, m, readings) {
-                        // The sensor edges happen even where the order they
-                        // prompted does not reach the plant.
-                        let mut r = Hypothesis {
-                            phys: h.phys ^ (changed & !orders),
-                            flags: h.flags & !(Hypothesis::STARTED | Hypothesis::SOONER),
-                            ..h
-                        };
-                        r.phys ^= self.apply_orders(&mut r, orders);
-                        out.push(r);
-                    }
-                }
-            }
+            self.reactions(h, obs, changed, readings, &mut out);
             sensed.clear();
             self.explain(h, sensors, 0, after, readings, &mut sensed);
+            let astray = self.astray(h, obs) & sensors;
+            if astray != 0 {
+                let r = Hypothesis {
+                    phys: h.phys ^ astray,
+                    ..h
+                };
+                self.explain(r, sensors & !astray, astray, after, readings, &mut sensed);
+            }
             for mut r in sensed.drain(..) {
                 r.flags &= !Hypothesis::STARTED;
                 if orders != 0 {
@@ -917,6 +923,121 @@ impl PartDiagnoser {
         out.sort_unstable();
         out.dedup();
         out
+    }
+
+    /// The sensors left to themselves under `h` in the observed state `obs`:
+    /// where a stuck actuator holds the element away from where the control
+    /// sent it, the part is in a state the model never judged, and the sensors
+    /// the element does not drive (a workpiece arriving) keep whatever moves
+    /// them, as under a blocked element.
+    fn astray(&self, h: Hypothesis, obs: u32) -> u32 {
+        if self.drives == 0 || !self.held_astray(h, obs) {
+            return 0;
+        }
+        let sensors = ((1u32 << self.names.len()) - 1) & !self.act_mask;
+        sensors & !self.drives & !self.inputs
+    }
+
+    /// Whether `h`'s stuck actuator holds its element away from where the
+    /// control sends it in the observed state `obs`.
+    fn held_astray(&self, h: Hypothesis, obs: u32) -> bool {
+        matches!(self.modes[h.mode as usize].kind,
+            ModeKind::ActuatorStuck { bit, .. } if (obs ^ h.phys) >> bit & 1 == 1)
+    }
+
+    /// The scan `changed` from `obs` as the control's reaction to some of its
+    /// sensor edges (a transition of the model with the scan's orders and
+    /// those edges), the scan's other edges explained by the model before or
+    /// after it: a workpiece leaves the entry of a belt in the scan the belt
+    /// stops at its end. The reaction's edges happen even where the order they
+    /// prompted does not reach the plant.
+    fn reactions(
+        &self,
+        h: Hypothesis,
+        obs: u32,
+        changed: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        let orders = changed & self.act_mask;
+        let sensors = changed & !self.act_mask;
+        if orders == 0
+            || self.motion(sensors) == 0
+            || self.decoupled(h) & sensors != 0
+            || self.frozen_bits(h) & changed != 0
+        {
+            return;
+        }
+        let after = obs ^ changed;
+        let mut before = Vec::new();
+        let mut others = Vec::new();
+        for edges in self.reaction_edges(orders, sensors) {
+            // The other edges first, then the reaction.
+            let rest = sensors & !edges;
+            before.clear();
+            if rest == 0 {
+                before.push(h);
+            } else {
+                self.explain(h, rest, 0, after, readings, &mut before);
+            }
+            for &b in &before {
+                let moved = b.phys ^ h.phys;
+                for r in self.reacted(b, orders | edges, moved, readings) {
+                    out.push(r);
+                }
+            }
+            // The reaction first, then the other edges.
+            if rest == 0 {
+                continue;
+            }
+            for r in self.reacted(h, orders | edges, 0, readings) {
+                others.clear();
+                self.explain(r, rest, edges, after, readings, &mut others);
+                out.append(&mut others);
+            }
+        }
+    }
+
+    /// The sets of sensor edges among `sensors` that the control reacts to
+    /// with `orders` somewhere in the model.
+    fn reaction_edges(&self, orders: u32, sensors: u32) -> impl Iterator<Item = u32> + '_ {
+        self.reactions
+            .iter()
+            .filter(move |&&r| r & self.act_mask == orders && r & !orders & !sensors == 0)
+            .map(move |&r| r & !orders)
+    }
+
+    /// `h` after the model's transition that changes exactly `changed` (orders
+    /// and sensor edges) from its state, in the same scan as the transitions
+    /// that moved `moved`.
+    fn reacted<'a>(
+        &'a self,
+        h: Hypothesis,
+        changed: u32,
+        moved: u32,
+        readings: &'a Readings,
+    ) -> impl Iterator<Item = Hypothesis> + 'a {
+        let orders = changed & self.act_mask;
+        let moves = match self.model_state(h.phys) {
+            Some(s) => &self.moves[s][..],
+            None => &[],
+        };
+        moves
+            .iter()
+            .filter(move |m| {
+                m.changed == self.motion(changed)
+                    && self.admits(h, m, readings)
+                    && !self.too_soon(h, m, moved)
+            })
+            .map(move |_| {
+                let mut r = Hypothesis {
+                    phys: h.phys ^ (changed & !orders),
+                    flags: h.flags & !(Hypothesis::STARTED | Hypothesis::SOONER),
+                    ..h
+                };
+                r.phys ^= self.apply_orders(&mut r, orders);
+                r
+            })
     }
 
     /// Explains the observed sensor edges `rest` from hypothesis `h`: by the
@@ -959,10 +1080,18 @@ impl PartDiagnoser {
                         // does not come; the edges themselves still happen, the
                         // hidden ones with the visible ones (as in `close`). Nor
                         // does a reaction the control already shows, on an
-                        // actuator stuck where the reaction would put it.
+                        // actuator stuck where the reaction would put it, nor
+                        // one to an element the control did not send where it
+                        // is. The reaction to edges from outside the part may
+                        // wait for conditions outside it too (a workpiece
+                        // arrives before the next machine is ready).
                         let physical = if !m.command {
                             m.changed
-                        } else if sensed & dec != 0 || self.reaction_shown(h, m, after) {
+                        } else if sensed & dec != 0
+                            || sensed & !self.loose == 0
+                            || self.reaction_shown(h, m, after)
+                            || self.held_astray(h, after)
+                        {
                             sensed
                         } else {
                             continue;
@@ -1334,6 +1463,35 @@ fn borrow_moves(vectors: &[u32], moves: &mut [Vec<Move>], loose: u32) {
                 if !moves[s].iter().any(|n| n.changed == m.changed) {
                     moves[s].push(Move { timed: false, ..*m });
                 }
+            }
+        }
+    }
+}
+
+/// Lends each untimed edge of a `loose` sensor alone (a refill of a magazine,
+/// a workpiece taken away) to every motion state where the sensor reads what
+/// the edge leaves, when the state it leads to is known: such an edge comes
+/// from outside the part, whatever its motion, even if the learning logs only
+/// showed it while the part stood still. Lent moves are untimed.
+fn lend_outside_edges(
+    vectors: &[u32],
+    states: &HashMap<u32, usize>,
+    moves: &mut [Vec<Move>],
+    loose: u32,
+) {
+    let outside: Vec<(u32, Move)> = moves
+        .iter()
+        .enumerate()
+        .flat_map(|(s, ms)| ms.iter().map(move |m| (vectors[s], m.clone())))
+        .filter(|(_, m)| !m.timed && m.changed.count_ones() == 1 && m.changed & !loose == 0)
+        .collect();
+    for (s, &v) in vectors.iter().enumerate() {
+        for (from, m) in &outside {
+            if v & m.changed == from & m.changed
+                && states.contains_key(&(v ^ m.changed))
+                && !moves[s].iter().any(|n| n.changed == m.changed)
+            {
+                moves[s].push(m.clone());
             }
         }
     }
