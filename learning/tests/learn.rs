@@ -241,16 +241,20 @@ fn guards_widen_by_the_drift_between_logs() {
     close(stroke_guard(&[500, 510, 520], 3.0), 465.36, 554.64);
 }
 
+/// A part `cyl` of one cylinder (order `Y`, end switch `B`) and one more sensor.
+fn cylinder_and_sensor(sensor: &str) -> diagnoser::Plant {
+    let text = format!(
+        "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = {{ kind = \"actuator\" }}\n\
+         B = {{ kind = \"sensor\" }}\n{sensor} = {{ kind = \"sensor\" }}\n[[parts]]\n\
+         name = \"cyl\"\nactuators = [\"Y\"]\nsensors = [\"B\", \"{sensor}\"]\n"
+    );
+    diagnoser::Plant::parse(&text, std::path::Path::new("c.toml")).expect("plant")
+}
+
 #[test]
 fn a_sensor_no_order_moves_is_classified_an_input() {
     use diagnoser::model::SensorKind;
-    let plant = diagnoser::Plant::parse(
-        "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
-         B = { kind = \"sensor\" }\nR = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\n\
-         actuators = [\"Y\"]\nsensors = [\"B\", \"R\"]\n",
-        std::path::Path::new("c.toml"),
-    )
-    .expect("plant");
+    let plant = cylinder_and_sensor("R");
     let ids = |n: &str| plant.signals.id(n).expect("signal");
     let (y, b, r) = (ids("Y"), ids("B"), ids("R"));
     let mut events = Vec::new();
@@ -458,13 +462,7 @@ fn withdrawals(withdrawn: &[i64], edge: bool) -> Vec<(i64, &'static str, bool)> 
 
 #[test]
 fn an_order_at_no_regular_time_leaves_its_state_without_deadline() {
-    let plant = diagnoser::Plant::parse(
-        "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
-         B = { kind = \"sensor\" }\nC = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\n\
-         actuators = [\"Y\"]\nsensors = [\"B\", \"C\"]\n",
-        std::path::Path::new("c.toml"),
-    )
-    .expect("plant");
+    let plant = cylinder_and_sensor("C");
     let moving = |model: &Model| {
         let cyl = part(model, "cyl");
         let state = cyl
