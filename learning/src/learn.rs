@@ -351,9 +351,9 @@ impl Hist {
 
     /// How far beyond its learned logs' means, below and above, a new run's mean
     /// may land: `reach` (relative drift times deviations) around their mean,
-    /// scaled for the few logs it is estimated from.
-    /// A transition seen often in one log only still drifts as much as the
-    /// plant's others: its mean over every log stands for that one log.
+    /// scaled for the few logs it is estimated from. A transition seen often
+    /// in one log only still drifts as much as the plant's others: its mean over
+    /// every sample stands for that one log's.
     fn drift_reach(&self, reach: f64) -> (f64, f64) {
         let mut means = self.log_means();
         if means.len() < 2 {

@@ -982,9 +982,7 @@ impl PartDiagnoser {
             }
             for &b in &before {
                 let moved = b.phys ^ h.phys;
-                for r in self.reacted(b, orders | edges, moved, readings) {
-                    out.push(r);
-                }
+                out.extend(self.reacted(b, orders | edges, moved, readings));
             }
             // The reaction first, then the other edges.
             if rest == 0 {
