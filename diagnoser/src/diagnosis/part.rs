@@ -43,7 +43,7 @@ pub enum Clock {
 }
 
 /// One transition of the learned model, in the form the diagnoser runs.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Copy)]
 pub struct Move {
     /// Index of the transition in the model.
     pub id: usize,
@@ -205,9 +205,9 @@ pub struct PartDiagnoser {
     loose: u32,
     /// The changes of the model's reactions (orders with sensor edges), each once.
     reactions: Vec<u32>,
-    /// Bits of the sensors the part's element drives (the plant file's
-    /// `drives`; 0 when it declares none).
-    drives: u32,
+    /// Bits of the sensors that the part's element does not drive, when the
+    /// plant file says which it drives (`drives`), its inputs apart; else 0.
+    undriven: u32,
     /// Motion state of each known motion vector (a state vector without its
     /// inputs' bits).
     states: HashMap<u32, usize>,
@@ -437,7 +437,11 @@ impl PartDiagnoser {
             inputs,
             loose,
             reactions,
-            drives,
+            undriven: if drives == 0 {
+                0
+            } else {
+                ((1 << names.len()) - 1) & !act_mask & !drives & !inputs
+            },
             name: part.name.clone(),
             signals,
             names,
@@ -931,11 +935,11 @@ impl PartDiagnoser {
     /// the element does not drive (a workpiece arriving) keep whatever moves
     /// them, as under a blocked element.
     fn astray(&self, h: Hypothesis, obs: u32) -> u32 {
-        if self.drives == 0 || !self.held_astray(h, obs) {
-            return 0;
+        if self.held_astray(h, obs) {
+            self.undriven
+        } else {
+            0
         }
-        let sensors = ((1u32 << self.names.len()) - 1) & !self.act_mask;
-        sensors & !self.drives & !self.inputs
     }
 
     /// Whether `h`'s stuck actuator holds its element away from where the
@@ -1480,16 +1484,16 @@ fn lend_outside_edges(
     let outside: Vec<(u32, Move)> = moves
         .iter()
         .enumerate()
-        .flat_map(|(s, ms)| ms.iter().map(move |m| (vectors[s], m.clone())))
+        .flat_map(|(s, ms)| ms.iter().map(move |&m| (vectors[s], m)))
         .filter(|(_, m)| !m.timed && m.changed.count_ones() == 1 && m.changed & !loose == 0)
         .collect();
     for (s, &v) in vectors.iter().enumerate() {
-        for (from, m) in &outside {
+        for &(from, m) in &outside {
             if v & m.changed == from & m.changed
                 && states.contains_key(&(v ^ m.changed))
                 && !moves[s].iter().any(|n| n.changed == m.changed)
             {
-                moves[s].push(m.clone());
+                moves[s].push(m);
             }
         }
     }
