@@ -274,6 +274,22 @@ fn fixture_labels_with_model(
     events: &[(i64, &str, bool)],
     end: i64,
 ) -> Vec<String> {
+    fixture_verdicts(name, edit, edit_model, on, events, end)
+        .iter()
+        .rev()
+        .find(|v| v.part == name)
+        .map_or_else(|| vec!["N".to_string()], |v| v.labels.clone())
+}
+
+/// Every verdict of the replay of [`fixture_labels_with_model`].
+fn fixture_verdicts(
+    name: &str,
+    edit: &dyn Fn(String) -> String,
+    edit_model: &dyn Fn(String) -> String,
+    on: &[&str],
+    events: &[(i64, &str, bool)],
+    end: i64,
+) -> Vec<Verdict> {
     let dir = "diagnoser/tests/fixtures/diagnosis";
     let text = std::fs::read_to_string(repo(&format!("{dir}/{name}.toml"))).expect("plant");
     let plant = Plant::parse(&edit(text), Path::new(name)).expect("plant parses");
@@ -303,10 +319,6 @@ fn fixture_labels_with_model(
     }
     d.finish(end * ms, &mut |v| verdicts.push(v));
     verdicts
-        .iter()
-        .rev()
-        .find(|v| v.part == name)
-        .map_or_else(|| vec!["N".to_string()], |v| v.labels.clone())
 }
 
 /// The table of `fixtures/diagnosis/table.toml`, from the loading position
@@ -708,5 +720,113 @@ fn a_valve_stuck_on_leaves_the_workpiece_sensor_to_the_workpieces() {
     assert!(
         labels.contains(&"Y201.actuator_stuck1".to_string()),
         "{labels:?}"
+    );
+}
+
+#[test]
+fn a_stuck_switch_keeps_its_label_when_the_control_it_misleads_releases_a_cylinder_leaving() {
+    // The extended switch B304 of `fixtures/diagnosis/shuttle.toml` sticks on
+    // while the cylinder rests retracted. The control extends it and, reading
+    // B304, releases it as soon as it leaves B303: it springs back within a
+    // scan, much sooner than a whole return stroke.
+    let events = [
+        (1000, "B304", true),
+        (10_000, "Y301", true),
+        (10_005, "Y301", false),
+        (10_005, "B303", false),
+        (10_010, "B303", true),
+    ];
+    let labels = fixture_labels("shuttle", &|t| t, &["B303"], &events, 20_000);
+    assert!(labels.contains(&"B304.stuck1".to_string()), "{labels:?}");
+}
+
+#[test]
+fn an_entry_sensor_stuck_on_starts_the_belt_for_a_workpiece_that_never_came() {
+    // The entry sensor B201 of `fixtures/diagnosis/conveyor.toml` sticks on
+    // as a workpiece passes it. Once that workpiece is taken from the end
+    // stop, the control starts the belt again for the one it reads at the
+    // entry, and the empty belt runs with nothing to carry.
+    let events = [
+        (1000, "B201", true),
+        (3000, "M201", true),
+        (3310, "B202", true),
+        (3400, "B202", false),
+        (3700, "M201", false),
+        (3700, "B203", true),
+        (30_000, "B203", false),
+        (30_700, "M201", true),
+    ];
+    let labels = fixture_labels("conveyor", &|t| t, &[], &events, 60_000);
+    assert!(labels.contains(&"B201.stuck1".to_string()), "{labels:?}");
+}
+
+#[test]
+fn a_stuck_switch_keeps_its_label_when_the_control_sends_a_slide_out_from_half_way() {
+    // The home switch B402 of `fixtures/diagnosis/slide.toml` sticks on. The
+    // control, reading it, releases the return valve as soon as the slide
+    // leaves its far end, and the slide stays half-way. Sent out again from
+    // there, it no longer pushes the workpiece off the input sensor B401.
+    let events = [
+        (10_000, "Y401", true),
+        (10_064, "B401", false),
+        (11_152, "Y401", false),
+        (11_152, "Y402", true),
+        (11_152, "B403", true),
+        (11_168, "Y402", false),
+        (11_168, "B403", false),
+        (11_632, "B401", true),
+        (12_448, "Y401", true),
+        (13_408, "Y401", false),
+        (13_408, "Y402", true),
+        (13_408, "B403", true),
+        (13_424, "Y402", false),
+        (13_440, "B403", false),
+    ];
+    let labels = fixture_labels("slide", &|t| t, &["B402", "B401"], &events, 20_000);
+    assert!(labels.contains(&"B402.stuck1".to_string()), "{labels:?}");
+}
+
+#[test]
+fn a_slide_blocked_in_transit_leaves_the_workpiece_sensor_to_the_workpieces() {
+    // The slide of `fixtures/diagnosis/gate.toml` leaves its retracted switch
+    // B102, pushes the workpiece off B101 and stops before B103. The next
+    // workpiece reaches B101 9 s later, in a state the model only knew with a
+    // slide that pushes it off within 16 ms.
+    let events = [
+        (10_000, "Y101", true),
+        (10_005, "B102", false),
+        (10_010, "B101", false),
+        (18_670, "B101", true),
+    ];
+    let labels = fixture_labels("gate", &|t| t, &["B102", "B101"], &events, 30_000);
+    assert!(
+        labels.contains(&"A11.blocked_between.B102.B103".to_string()),
+        "{labels:?}"
+    );
+}
+
+#[test]
+fn an_edge_out_of_its_window_is_timed_on_the_window_s_own_clock() {
+    // On the belt of `fixtures/diagnosis/conveyor.toml`, a workpiece passes
+    // the middle sensor B202 in 74–105 ms; here in 30 ms, 360 ms after the
+    // belt started.
+    let events = [
+        (1000, "B201", true),
+        (3000, "M201", true),
+        (3080, "B201", false),
+        (3330, "B202", true),
+        (3360, "B202", false),
+    ];
+    let verdicts = fixture_verdicts("conveyor", &|t| t, &|m| m, &[], &events, 4000);
+    let first = verdicts
+        .iter()
+        .find(|v| v.part == "conveyor")
+        .expect("the belt leaves normal");
+    assert!(
+        first
+            .reason
+            .starts_with("FE(B202) at 30 ms after RE(B202), outside its window ["),
+        "{}",
+        first.reason
     );
 }

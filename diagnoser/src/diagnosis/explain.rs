@@ -95,12 +95,52 @@ pub(crate) fn reason(
                     let motion = part.motion(changed);
                     part.moves(st).iter().find(|m| m.changed == motion)
                 });
+                let reading = |clock: u8| readings.get(clock as usize).copied().flatten();
                 match known {
-                    Some(m) => s.push_str(&format!(
-                        ", outside its window {} after {}",
-                        window(m.lo, m.hi),
-                        clock_text(m.clock)
-                    )),
+                    // Out of its window on its own clock: say so on that clock.
+                    Some(m)
+                        if m.timed && reading(m.clock).is_some_and(|r| r < m.lo || r > m.hi) =>
+                    {
+                        s = format!(
+                            "{edges} at {} after {}, outside its window {} after {}",
+                            fmt(reading(m.clock).unwrap_or_default()),
+                            clock_text(m.clock),
+                            window(m.lo, m.hi),
+                            clock_text(m.clock)
+                        );
+                    }
+                    // In its window, into a state whose deadline has passed.
+                    Some(_) => {
+                        let target = part.model_state(obs ^ changed);
+                        let late: Vec<String> = target
+                            .map(|st| {
+                                part.expected(st)
+                                    .iter()
+                                    .map(|&k| &part.moves(st)[k])
+                                    .filter(|m| reading(m.clock).is_some_and(|r| r > m.hi))
+                                    .map(|m| {
+                                        format!(
+                                            "{} within {} after {}",
+                                            part.event_name(m.id),
+                                            window(m.lo, m.hi),
+                                            clock_text(m.clock)
+                                        )
+                                    })
+                                    .collect()
+                            })
+                            .unwrap_or_default();
+                        if late.is_empty() {
+                            s.push_str(&format!(
+                                ", not expected then in state {}",
+                                part.describe(obs)
+                            ));
+                        } else {
+                            s.push_str(&format!(
+                                ", too late for the state it leads to, which expects {}",
+                                late.join(", or ")
+                            ));
+                        }
+                    }
                     None => s.push_str(&format!(", not expected in state {}", part.describe(obs))),
                 }
             }

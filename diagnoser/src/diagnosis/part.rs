@@ -59,6 +59,9 @@ pub struct Move {
     pub hi: Time,
     /// Whether the guard is enforced (untimed transitions follow the product flow).
     pub timed: bool,
+    /// Whether the move was learned in another state and lent to this one
+    /// (see `borrow_moves` and `lend_outside_edges`).
+    pub lent: bool,
 }
 
 /// How a fault mode transforms the part's normal behaviour.
@@ -156,6 +159,14 @@ impl Hypothesis {
     /// are not enforced, their upper bounds and deadlines are. Holds until a
     /// sensor edge of the model dates the element again.
     pub const SOONER: u8 = 8;
+    /// The hypothesis reached its state from one the model never saw, or by
+    /// edges the model's moves do not explain (a blocked element holds a
+    /// state where the normal plant only passes; a slide left half-way home
+    /// is sent out again): the model may know the state, but not with the
+    /// element where it is. The sensors the element does not drive are left
+    /// to themselves (see [`PartDiagnoser::astray`]). Holds until a sensor
+    /// edge of the model dates the element again.
+    pub const UNSEEN: u8 = 16;
 
     /// [`Hypothesis::since`] of a glitch that began with an observed edge.
     pub const SEEN: u16 = u16::MAX;
@@ -208,6 +219,9 @@ pub struct PartDiagnoser {
     /// Bits of the sensors that the part's element does not drive, when the
     /// plant file says which it drives (`drives`), its inputs apart; else 0.
     undriven: u32,
+    /// Per motion state, the other motion states that differ from it only in
+    /// `undriven` bits.
+    kin: Vec<Vec<usize>>,
     /// Motion state of each known motion vector (a state vector without its
     /// inputs' bits).
     states: HashMap<u32, usize>,
@@ -362,6 +376,7 @@ impl PartDiagnoser {
                 lo: to_ns(t.guard.lo),
                 hi: to_ns(t.guard.hi),
                 timed: t.timed,
+                lent: false,
             });
         }
         let expected = expectations(model, &motion_state, &moves);
@@ -431,17 +446,19 @@ impl PartDiagnoser {
             let l = &mut latest_lo[m.clock as usize];
             *l = (*l).max(m.lo);
         }
+        let undriven = if drives == 0 {
+            0
+        } else {
+            ((1 << names.len()) - 1) & !act_mask & !drives & !inputs
+        };
         Ok(PartDiagnoser {
+            kin: kin_states(&vectors, undriven),
             reversals: true,
             latest_lo,
             inputs,
             loose,
             reactions,
-            undriven: if drives == 0 {
-                0
-            } else {
-                ((1 << names.len()) - 1) & !act_mask & !drives & !inputs
-            },
+            undriven,
             name: part.name.clone(),
             signals,
             names,
@@ -493,6 +510,23 @@ impl PartDiagnoser {
     /// Transitions out of a model state.
     pub fn moves(&self, state: usize) -> &[Move] {
         &self.moves[state]
+    }
+
+    /// The moves `h` may take from its model state `s`: the model's, and,
+    /// where the control sent the element on from a state the model never
+    /// saw ([`Hypothesis::UNSEEN`]), those of the states that differ from `s`
+    /// only in sensors the element does not drive and that leave them alone.
+    fn moves_from(&self, h: Hypothesis, s: usize) -> impl Iterator<Item = &Move> + '_ {
+        let kin: &[usize] = if h.has(Hypothesis::UNSEEN) {
+            &self.kin[s]
+        } else {
+            &[]
+        };
+        self.moves[s].iter().chain(kin.iter().flat_map(move |&o| {
+            self.moves[o]
+                .iter()
+                .filter(move |m| m.changed & self.undriven == 0)
+        }))
     }
 
     /// The sensor events a model state expects, as indices in [`Self::moves`].
@@ -638,7 +672,10 @@ impl PartDiagnoser {
     /// An expected order is the control's timeout: the state may last until the
     /// latest it was seen to come.
     /// A blocked element waits for ever where an expected event moves it, but
-    /// the part's other sensors keep their deadlines.
+    /// the part's other sensors keep their deadlines. A state reached from
+    /// one the model never saw, or by edges its moves do not explain, does
+    /// not wait for the sensors the element does not drive
+    /// ([`Hypothesis::UNSEEN`]).
     fn expired(&self, h: Hypothesis, readings: &Readings) -> bool {
         if let Some((clock, limit)) = self.glitch_deadline(h)
             && readings
@@ -654,11 +691,17 @@ impl PartDiagnoser {
         };
         let exp = &self.expected[s];
         let frozen = self.frozen_bits(h);
+        let free = if h.has(Hypothesis::UNSEEN) {
+            self.undriven
+        } else {
+            0
+        };
         !exp.is_empty()
             && exp.iter().all(|&k| {
                 let m = &self.moves[s][k];
                 (m.timed || m.command)
                     && m.changed & frozen == 0
+                    && (free == 0 || m.changed & !self.act_mask & !free != 0)
                     && self.reading(h, m.clock, readings).is_some_and(|c| c > m.hi)
             })
     }
@@ -864,7 +907,8 @@ impl PartDiagnoser {
             if visible != 0 && visible & !rest == 0 {
                 let next = Hypothesis {
                     mode,
-                    flags: (h.flags | Hypothesis::GLITCH) & !Hypothesis::SOONER,
+                    flags: (h.flags | Hypothesis::GLITCH)
+                        & !(Hypothesis::SOONER | Hypothesis::UNSEEN),
                     since: m.id as u16,
                     phys: h.phys ^ sensed,
                 };
@@ -916,7 +960,7 @@ impl PartDiagnoser {
                 if orders != 0 {
                     let applied = self.apply_orders(&mut r, orders);
                     if r.mode != 0 && !self.frozen(r) && applied != 0 {
-                        r.flags |= self.misled(r.phys, applied);
+                        r.flags |= self.misled(r, applied, after);
                     }
                     r.phys ^= applied;
                 }
@@ -931,11 +975,12 @@ impl PartDiagnoser {
 
     /// The sensors left to themselves under `h` in the observed state `obs`:
     /// where a stuck actuator holds the element away from where the control
-    /// sent it, the part is in a state the model never judged, and the sensors
-    /// the element does not drive (a workpiece arriving) keep whatever moves
-    /// them, as under a blocked element.
+    /// sent it, or the control sent it on from a state the model never saw
+    /// ([`Hypothesis::UNSEEN`]), the part is in a state the model never
+    /// judged, and the sensors the element does not drive (a workpiece
+    /// arriving) keep whatever moves them, as under a blocked element.
     fn astray(&self, h: Hypothesis, obs: u32) -> u32 {
-        if self.held_astray(h, obs) {
+        if self.held_astray(h, obs) || h.has(Hypothesis::UNSEEN) {
             self.undriven
         } else {
             0
@@ -1020,12 +1065,9 @@ impl PartDiagnoser {
         readings: &'a Readings,
     ) -> impl Iterator<Item = Hypothesis> + 'a {
         let orders = changed & self.act_mask;
-        let moves = match self.model_state(h.phys) {
-            Some(s) => &self.moves[s][..],
-            None => &[],
-        };
-        moves
-            .iter()
+        self.model_state(h.phys)
+            .into_iter()
+            .flat_map(move |s| self.moves_from(h, s))
             .filter(move |m| {
                 m.changed == self.motion(changed)
                     && self.admits(h, m, readings)
@@ -1034,7 +1076,8 @@ impl PartDiagnoser {
             .map(move |_| {
                 let mut r = Hypothesis {
                     phys: h.phys ^ (changed & !orders),
-                    flags: h.flags & !(Hypothesis::STARTED | Hypothesis::SOONER),
+                    flags: h.flags
+                        & !(Hypothesis::STARTED | Hypothesis::SOONER | Hypothesis::UNSEEN),
                     ..h
                 };
                 r.phys ^= self.apply_orders(&mut r, orders);
@@ -1073,7 +1116,7 @@ impl PartDiagnoser {
         if rest & frozen == 0 {
             match self.model_state(h.phys) {
                 Some(s) => {
-                    for m in &self.moves[s] {
+                    for m in self.moves_from(h, s) {
                         let sensed = m.changed & !self.act_mask;
                         if sensed.count_ones() >= 2 {
                             self.hidden_amid(h, m, rest, moved, after, readings, out);
@@ -1105,7 +1148,7 @@ impl PartDiagnoser {
                             // The edge dates the element again.
                             let next = Hypothesis {
                                 phys: h.phys ^ physical,
-                                flags: h.flags & !Hypothesis::SOONER,
+                                flags: h.flags & !(Hypothesis::SOONER | Hypothesis::UNSEEN),
                                 ..h
                             };
                             let moved = moved | physical;
@@ -1117,6 +1160,7 @@ impl PartDiagnoser {
                 // the model cannot judge its sensors.
                 None if rest & dec == 0 => out.push(Hypothesis {
                     phys: h.phys ^ rest,
+                    flags: h.flags | Hypothesis::UNSEEN,
                     ..h
                 }),
                 None => {}
@@ -1131,6 +1175,7 @@ impl PartDiagnoser {
             if frozen != 0 && rest & dec == 0 {
                 out.push(Hypothesis {
                     phys: h.phys ^ rest,
+                    flags: h.flags | Hypothesis::UNSEEN,
                     ..h
                 });
             }
@@ -1215,14 +1260,19 @@ impl PartDiagnoser {
             .then_some(visible)
     }
 
-    /// What a fault hypothesis must allow for when the control, misled by the
-    /// fault, gives `orders` in the physical state `phys`:
-    /// [`Hypothesis::STARTED`] if the model never saw them given there, and
+    /// What a fault hypothesis `r` must allow for when the control, misled by
+    /// the fault, gives `orders` in `r`'s physical state, the observed state
+    /// becoming `after`:
+    /// [`Hypothesis::STARTED`] if the model never saw them given there,
     /// [`Hypothesis::SOONER`] if the element may be in transit and the model
     /// never saw them given there without the sensor edges that end the
     /// transit (a cylinder released half-way out, when the control thought it
-    /// out).
-    fn misled(&self, phys: u32, orders: u32) -> u8 {
+    /// out), [`Hypothesis::UNTIMED`] if the control reacts to an arrival
+    /// from outside the part that only the fault shows (see
+    /// [`Self::reacts_to_shown_arrival`]), and [`Hypothesis::UNSEEN`] if the
+    /// model never saw the state `phys` at all.
+    fn misled(&self, r: Hypothesis, orders: u32, after: u32) -> u8 {
+        let phys = r.phys;
         let mut flags = 0;
         if !self.learned_order(phys, orders) {
             flags |= Hypothesis::STARTED;
@@ -1233,14 +1283,46 @@ impl PartDiagnoser {
         if self.reversals && !alone && self.in_transit(phys) {
             flags |= Hypothesis::SOONER;
         }
+        if self.reacts_to_shown_arrival(r, orders, after) {
+            flags |= Hypothesis::UNTIMED;
+        }
+        if self.model_state(phys).is_none() {
+            flags |= Hypothesis::UNSEEN;
+        }
         flags
     }
 
+    /// Whether the learning logs showed the control give `orders` in `r`'s
+    /// physical state only as its reaction to edges of sensors moved from
+    /// outside the part, which `r`'s fault shows in `after` though the plant did not make
+    /// them: the control starts a motion for a workpiece that never came (a
+    /// belt started by an entry sensor stuck on). The model never saw the part
+    /// move without it, so its guards and deadlines no longer apply.
+    fn reacts_to_shown_arrival(&self, r: Hypothesis, orders: u32, after: u32) -> bool {
+        let shown = self.decoupled(r) & self.loose & (after ^ r.phys);
+        let Some(s) = self.model_state(r.phys).filter(|_| shown != 0) else {
+            return false;
+        };
+        let mut reactions = self.moves[s]
+            .iter()
+            .filter(|m| !m.lent && m.command && m.changed & self.act_mask == orders)
+            .peekable();
+        reactions.peek().is_some()
+            && reactions.all(|m| {
+                let sensed = m.changed & !self.act_mask;
+                sensed != 0 && sensed & !shown == 0
+            })
+    }
+
     /// Whether an element may be between two positions in the physical state
-    /// `phys`: the model must see a sensor edge to leave it, or never saw it.
+    /// `phys`: the model must see a sensor edge to leave it (alone, or with
+    /// the control's reaction to it), or never saw it.
     fn in_transit(&self, phys: u32) -> bool {
-        self.model_state(phys)
-            .is_none_or(|s| self.expected[s].iter().any(|&k| !self.moves[s][k].command))
+        self.model_state(phys).is_none_or(|s| {
+            self.expected[s]
+                .iter()
+                .any(|&k| self.moves[s][k].changed & !self.act_mask != 0)
+        })
     }
 
     /// Whether the model saw the control give `orders` in the physical state `phys`.
@@ -1446,6 +1528,20 @@ fn loose_mask(model: &PartModel, bit_of: &impl Fn(&str) -> Option<u8>) -> u32 {
         .fold(0, |m, b| m | 1 << b)
 }
 
+/// Per motion state, the other motion states whose vectors differ from its
+/// own only in the bits `undriven`.
+fn kin_states(vectors: &[u32], undriven: u32) -> Vec<Vec<usize>> {
+    vectors
+        .iter()
+        .enumerate()
+        .map(|(s, &v)| {
+            (0..vectors.len())
+                .filter(|&o| o != s && undriven != 0 && (v ^ vectors[o]) & !undriven == 0)
+                .collect()
+        })
+        .collect()
+}
+
 /// Lends each motion state the moves of the states that differ from it only in
 /// `loose` bits, when the moves leave those bits alone: a workpiece arriving at the entry
 /// of a conveyor does not change how the one ahead of it reaches the end stop,
@@ -1463,7 +1559,11 @@ fn borrow_moves(vectors: &[u32], moves: &mut [Vec<Move>], loose: u32) {
             }
             for m in own[o].iter().filter(|m| m.changed & (v ^ w) == 0) {
                 if !moves[s].iter().any(|n| n.changed == m.changed) {
-                    moves[s].push(Move { timed: false, ..*m });
+                    moves[s].push(Move {
+                        timed: false,
+                        lent: true,
+                        ..*m
+                    });
                 }
             }
         }
@@ -1493,7 +1593,7 @@ fn lend_outside_edges(
                 && states.contains_key(&(v ^ m.changed))
                 && !moves[s].iter().any(|n| n.changed == m.changed)
             {
-                moves[s].push(m);
+                moves[s].push(Move { lent: true, ..m });
             }
         }
     }
