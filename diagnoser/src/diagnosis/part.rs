@@ -1160,7 +1160,7 @@ impl PartDiagnoser {
                 // the model cannot judge its sensors.
                 None if rest & dec == 0 => out.push(Hypothesis {
                     phys: h.phys ^ rest,
-                    flags: h.flags | Hypothesis::UNSEEN,
+                    flags: h.flags | self.unseen_in(h.phys ^ rest, false),
                     ..h
                 }),
                 None => {}
@@ -1175,7 +1175,7 @@ impl PartDiagnoser {
             if frozen != 0 && rest & dec == 0 {
                 out.push(Hypothesis {
                     phys: h.phys ^ rest,
-                    flags: h.flags | Hypothesis::UNSEEN,
+                    flags: (h.flags & !Hypothesis::UNSEEN) | self.unseen_in(h.phys ^ rest, true),
                     ..h
                 });
             }
@@ -1287,7 +1287,7 @@ impl PartDiagnoser {
             flags |= Hypothesis::UNTIMED;
         }
         if self.model_state(phys).is_none() {
-            flags |= Hypothesis::UNSEEN;
+            flags |= self.unseen_in(phys ^ orders, false);
         }
         flags
     }
@@ -1312,6 +1312,29 @@ impl PartDiagnoser {
                 let sensed = m.changed & !self.act_mask;
                 sensed != 0 && sensed & !shown == 0
             })
+    }
+
+    /// [`Hypothesis::UNSEEN`] for a hypothesis that reaches the state
+    /// `phys` from one the model never saw, or (`blocked`) a blocked element's
+    /// by edges the model does not explain, where the flag changes something:
+    /// in a state the model knows, when the element does not drive every
+    /// sensor, and for a blocked element, which moves no more, only where the
+    /// state waits for edges of the sensors it does not drive alone.
+    fn unseen_in(&self, phys: u32, blocked: bool) -> u8 {
+        let Some(s) = self.model_state(phys).filter(|_| self.undriven != 0) else {
+            return 0;
+        };
+        let waits_alone = || {
+            self.expected[s].iter().any(|&k| {
+                let sensed = self.moves[s][k].changed & !self.act_mask;
+                sensed != 0 && sensed & !self.undriven == 0
+            })
+        };
+        if !blocked || waits_alone() {
+            Hypothesis::UNSEEN
+        } else {
+            0
+        }
     }
 
     /// Whether an element may be between two positions in the physical state
