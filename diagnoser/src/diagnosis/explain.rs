@@ -1,7 +1,7 @@
 //! Verdict reasons in words: what was observed, or what failed to come.
 
 use super::engine::Engine;
-use super::part::{Clock, Hypothesis, Readings};
+use super::part::{Clock, Hypothesis, Move, Readings};
 use crate::TimeUnit;
 
 /// Why part `engine` went from state `previous` to `now`: after a scan that
@@ -29,6 +29,26 @@ pub(crate) fn reason(
     let fmt = |ns: i64| format!("{} {}", unit.format(ns), unit.name());
     let window =
         |lo: i64, hi: i64| format!("[{}, {}] {}", unit.format(lo), unit.format(hi), unit.name());
+    // The events model state `state` expects, among those `due`, as
+    // `E within [lo, hi] after C`.
+    let expectations = |state: Option<usize>, due: &dyn Fn(&Move) -> bool| -> Vec<String> {
+        let Some(st) = state else {
+            return Vec::new();
+        };
+        part.expected(st)
+            .iter()
+            .map(|&k| &part.moves(st)[k])
+            .filter(|m| due(m))
+            .map(|m| {
+                format!(
+                    "{} within {} after {}",
+                    part.event_name(m.id),
+                    window(m.lo, m.hi),
+                    clock_text(m.clock)
+                )
+            })
+            .collect()
+    };
     // The hypothesis whose loss best explains the change: the normal one first.
     let lost: Vec<Hypothesis> = before
         .hyps
@@ -58,23 +78,7 @@ pub(crate) fn reason(
             )
         }
         (None, None) => {
-            let missed: Vec<String> = subject
-                .and_then(|h| part.model_state(h.phys))
-                .map(|s| {
-                    part.expected(s)
-                        .iter()
-                        .map(|&k| {
-                            let m = &part.moves(s)[k];
-                            format!(
-                                "{} within {} after {}",
-                                part.event_name(m.id),
-                                window(m.lo, m.hi),
-                                clock_text(m.clock)
-                            )
-                        })
-                        .collect()
-                })
-                .unwrap_or_default();
+            let missed = expectations(subject.and_then(|h| part.model_state(h.phys)), &|_| true);
             if missed.is_empty() {
                 "time passed with no event".to_string()
             } else {
@@ -111,24 +115,9 @@ pub(crate) fn reason(
                     }
                     // In its window, into a state whose deadline has passed.
                     Some(_) => {
-                        let target = part.model_state(obs ^ changed);
-                        let late: Vec<String> = target
-                            .map(|st| {
-                                part.expected(st)
-                                    .iter()
-                                    .map(|&k| &part.moves(st)[k])
-                                    .filter(|m| reading(m.clock).is_some_and(|r| r > m.hi))
-                                    .map(|m| {
-                                        format!(
-                                            "{} within {} after {}",
-                                            part.event_name(m.id),
-                                            window(m.lo, m.hi),
-                                            clock_text(m.clock)
-                                        )
-                                    })
-                                    .collect()
-                            })
-                            .unwrap_or_default();
+                        let late = expectations(part.model_state(obs ^ changed), &|m| {
+                            reading(m.clock).is_some_and(|r| r > m.hi)
+                        });
                         if late.is_empty() {
                             s.push_str(&format!(
                                 ", not expected then in state {}",
