@@ -89,6 +89,9 @@ pub struct FaultOutcome {
     pub end_ms: i64,
     /// When the fault first showed in the log, in ms (`None`: never).
     pub showed_ms: Option<f64>,
+    /// Whether its part made the same edges in the same order as without the
+    /// fault, at other times only.
+    pub timing_only: bool,
     /// The replay judged against the truth.
     #[serde(flatten)]
     pub judgement: Judgement,
@@ -258,6 +261,7 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
             onset_ms: run.fault.onset / MS,
             end_ms: run.log.end / MS,
             showed_ms: run.showed.map(ms),
+            timing_only: run.timing_only,
             judgement,
             check_detectable: check.map(|c| c.0),
             check_isolable: check.map(|c| c.1),

@@ -10,7 +10,9 @@
 use datasets::generated::GeneratedPlant;
 use datasets::inject::Injection;
 use datasets::sim::{ScanSink, SimConfig, Stepper};
-use diagnoser::{Event, SignalId, Time};
+use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time};
+
+use crate::judge::part_of;
 
 /// A log in memory: the values of the first scan, then every change.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -78,6 +80,11 @@ pub struct FaultyRun<'a> {
     /// The first scan, from the onset, where the log differs from the
     /// fault-free one; `None` if it never does.
     pub showed: Option<Time>,
+    /// Whether, from the onset on, the fault's part made the same edges in the
+    /// same order as without the fault, at other times only (a pulse that
+    /// delays an edge by 50 ms): it then shows only where a time leaves the
+    /// normal spread.
+    pub timing_only: bool,
 }
 
 /// Runs each fault of `faults` for `horizon` after its onset, branching off
@@ -132,13 +139,39 @@ pub fn faulty_runs<'a>(
             }
         }
         let showed = first_difference(&reference.events, &r.log.events, fault.onset, end);
+        let signals = part_signals(plant.plant(), &fault.template);
+        let timing_only = same_edges(&reference.events, &r.log.events, fault.onset, end, &signals);
         each(FaultyRun {
             fault,
             log: r.log,
             showed,
+            timing_only,
         });
     }
     Ok(())
+}
+
+/// The signals of the part `template` is a fault of.
+fn part_signals(plant: &Plant, template: &FaultTemplate) -> Vec<SignalId> {
+    let name = part_of(plant, template);
+    plant
+        .parts
+        .iter()
+        .filter(|p| Some(&p.name) == name.as_ref())
+        .flat_map(|p| p.actuators.iter().chain(&p.sensors).copied())
+        .collect()
+}
+
+/// Whether two logs make the same edges of `signals`, in the same order, in
+/// `[from, to]` (at the same times or not).
+pub fn same_edges(a: &[Event], b: &[Event], from: Time, to: Time, signals: &[SignalId]) -> bool {
+    let edges = |l: &[Event]| {
+        l.iter()
+            .filter(|e| e.t >= from && e.t <= to && signals.contains(&e.signal))
+            .map(|e| (e.signal, e.value))
+            .collect::<Vec<_>>()
+    };
+    edges(a) == edges(b)
 }
 
 /// The time of the first event, in `[from, to]`, where two logs of the same
@@ -186,5 +219,22 @@ mod tests {
         // Differences before the window do not count.
         assert_eq!(first_difference(&a, &b[1..], 6, 10), Some(7));
         assert_eq!(first_difference(&a[..1], &b[..1], 2, 10), None);
+    }
+
+    #[test]
+    fn edges_are_the_same_when_only_their_times_differ_on_the_part_s_signals() {
+        let part = [SignalId(0), SignalId(1)];
+        let a = [e(1, 0, true), e(5, 1, true), e(9, 0, false)];
+        // One edge later: the same edges.
+        let later = [e(1, 0, true), e(7, 1, true), e(9, 0, false)];
+        assert!(same_edges(&a, &later, 0, 10, &part));
+        // Two edges swapped, an edge missing: not.
+        let swapped = [e(1, 0, true), e(5, 0, false), e(9, 1, true)];
+        assert!(!same_edges(&a, &swapped, 0, 10, &part));
+        assert!(!same_edges(&a, &a[..2], 0, 10, &part));
+        // Another part's edges, and edges before the window, do not count.
+        let other = [e(1, 0, true), e(3, 2, true), e(5, 1, true), e(9, 0, false)];
+        assert!(same_edges(&a, &other, 0, 10, &part));
+        assert!(same_edges(&a[1..], &a, 2, 10, &part));
     }
 }

@@ -29,6 +29,11 @@ pub struct Totals {
     pub showed: usize,
     /// ...and its part left normal after the onset.
     pub detected: usize,
+    /// Faulty runs where the fault changed its part's edges, not only their
+    /// times.
+    pub reordered: usize,
+    /// ...and its part left normal after the onset.
+    pub reordered_detected: usize,
     /// Runs where the fault's part left normal after the onset.
     pub judged: usize,
     /// ...and every such verdict kept the true label.
@@ -84,6 +89,10 @@ impl Totals {
             self.detected += 1;
             self.delays.push((t - r.onset_ms as f64) / 1000.0);
         }
+        if !r.timing_only {
+            self.reordered += 1;
+            self.reordered_detected += usize::from(j.detected_ms.is_some());
+        }
         self.isolated += usize::from(j.isolated);
         if r.check_isolable == Some(true) {
             self.isolable += 1;
@@ -137,8 +146,8 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
     }
     rows.push(("all".to_string(), all));
     let mut out = String::from(
-        "| plants | parts | faulty runs | false alarms / 100 h (fault-free h) | preempted (part alarmed before onset) | sound | detected (of showed) | isolated (of `check` isolable) | isolated (of isolable while running) | isolated (of showed) | delay median | delay p95 |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| plants | parts | faulty runs | false alarms / 100 h (fault-free h) | preempted (part alarmed before onset) | sound | detected (of showed) | detected (of edges changed) | isolated (of `check` isolable) | isolated (of isolable while running) | isolated (of showed) | delay median | delay p95 |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (name, t) in rows {
         let rate = if t.normal_hours > 0.0 {
@@ -158,13 +167,14 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
         };
         let _ = writeln!(
             out,
-            "| {name}: {}{errors} | {} | {} | {rate} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {name}: {}{errors} | {} | {} | {rate} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             t.plants,
             t.parts,
             t.runs,
             percent(t.preempted, t.runs),
             percent(t.sound, t.judged),
             percent(t.detected, t.showed),
+            percent(t.reordered_detected, t.reordered),
             percent(t.isolable_isolated, t.isolable),
             percent(t.isolable_running_isolated, t.isolable_running),
             percent(t.isolated, t.showed),
