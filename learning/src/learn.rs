@@ -775,6 +775,7 @@ impl PartLearner {
             }
         };
 
+        self.untime_outside_edges(&mut transitions, &own_timing, &mut untimed);
         // A reaction (sensor edge and command in one scan) out of a state that a
         // command alone also leaves is the control's choice as much as the
         // plant's: it is not timed.
@@ -880,6 +881,56 @@ impl PartLearner {
         }
     }
 
+    /// How many times the sensor at `bit` rose (`rising`) or fell, and how
+    /// many of those followed a clock of the part (`own_timing`, by transition).
+    fn edge_timing(&self, bit: usize, rising: bool, own_timing: &[bool]) -> (u64, u64) {
+        let (mut seen, mut timed) = (0u64, 0u64);
+        for (acc, &own) in self.trans.iter().zip(own_timing) {
+            if acc.changed >> bit & 1 == 1 && (acc.to_vec >> bit & 1 == 1) == rising {
+                seen += acc.count;
+                if own {
+                    timed += acc.count;
+                }
+            }
+        }
+        (seen, timed)
+    }
+
+    /// Untimes the transitions whose sensor edges all come, in most of their
+    /// occurrences, at no regular time on any clock of the part: such an edge
+    /// is the product flow's (a workpiece arriving), and where it came
+    /// regularly in the learning logs, that regularity was the flow's too (an
+    /// upstream machine that always had a workpiece ready), which the part
+    /// cannot promise.
+    fn untime_outside_edges(
+        &self,
+        transitions: &mut [TransitionModel],
+        own_timing: &[bool],
+        untimed: &mut Vec<String>,
+    ) {
+        let act_mask = self.act_mask();
+        let outside = |bit: usize, rising: bool| {
+            let (seen, timed) = self.edge_timing(bit, rising, own_timing);
+            timed * 2 < seen
+        };
+        for (t, acc) in transitions.iter_mut().zip(&self.trans) {
+            let sensed = acc.changed & !act_mask;
+            if !t.timed || sensed == 0 {
+                continue;
+            }
+            let all_outside = (0..self.names.len())
+                .filter(|&b| sensed >> b & 1 == 1)
+                .all(|b| outside(b, acc.to_vec >> b & 1 == 1));
+            if all_outside {
+                t.timed = false;
+                untimed.push(format!(
+                    "{}: most of its edges' occurrences follow no clock of the part: it follows the product flow",
+                    t.event
+                ));
+            }
+        }
+    }
+
     /// How each sensor of the part looks in the logs. For each edge (rises,
     /// falls) seen often enough to judge, it is *caused* when more than one in
     /// ten of its occurrences follow a clock of the part (a timed transition),
@@ -892,15 +943,7 @@ impl PartLearner {
         for bit in self.n_act..self.names.len() {
             let (mut outside, mut caused) = (Vec::new(), Vec::new());
             for rising in [true, false] {
-                let (mut seen, mut timed) = (0u64, 0u64);
-                for (acc, &own) in self.trans.iter().zip(own_timing) {
-                    if acc.changed >> bit & 1 == 1 && (acc.to_vec >> bit & 1 == 1) == rising {
-                        seen += acc.count;
-                        if own {
-                            timed += acc.count;
-                        }
-                    }
-                }
+                let (seen, timed) = self.edge_timing(bit, rising, own_timing);
                 let edge = if rising { "rises" } else { "falls" };
                 let text = format!("{timed} of {seen} {edge}");
                 if seen >= options.min_samples && timed * 10 <= seen {

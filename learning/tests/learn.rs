@@ -497,3 +497,56 @@ fn an_order_at_no_regular_time_leaves_its_state_without_deadline() {
         "{expected:?}"
     );
 }
+
+/// Cycles of cylinder `(Y, B)` with a workpiece sensor `C` that rises 300 ms
+/// after the stroke's end in the cycles `k` where `regular(k)`, and at no
+/// regular time while the cylinder rests in the others.
+fn arrivals(regular: impl Fn(i64) -> bool) -> Vec<(i64, &'static str, bool)> {
+    let mut edges = Vec::new();
+    for k in 0..60i64 {
+        let t = 1000 + k * 4000;
+        edges.extend([(t, "Y", true), (t + 500, "B", true), (t + 1500, "Y", false)]);
+        edges.push((t + 2000, "B", false));
+        let arrival = if regular(k) {
+            t + 800
+        } else {
+            t + 2100 + (k * k * 137) % 1500
+        };
+        edges.extend([(arrival, "C", true), (t + 3950, "C", false)]);
+    }
+    edges
+}
+
+#[test]
+fn an_edge_that_mostly_follows_the_product_flow_is_never_timed() {
+    let plant = cylinder_and_sensor("C");
+    let during_stroke = |model: &Model| {
+        let cyl = part(model, "cyl");
+        let from = cyl
+            .states
+            .iter()
+            .find(|s| s.values == [true, true, false])
+            .expect("the stroke's end")
+            .id;
+        let t = cyl
+            .transitions
+            .iter()
+            .find(|t| t.from == from && t.event == "RE(C)")
+            .expect("a workpiece during the stroke")
+            .clone();
+        (t, cyl.untimed.clone())
+    };
+    // One workpiece in three comes 300 ms after the stroke's end, the others
+    // whenever they come: that regularity was the flow's.
+    let (t, untimed) = during_stroke(&learn_logs(&plant, &[arrivals(|k| k % 3 == 0)]));
+    assert!(!t.timed, "{t:?}");
+    assert!(
+        untimed
+            .iter()
+            .any(|u| u.starts_with("RE(C)") && u.contains("follows the product flow")),
+        "{untimed:?}"
+    );
+    // Every workpiece 300 ms after the stroke's end: the part's own timing.
+    let (t, _) = during_stroke(&learn_logs(&plant, &[arrivals(|_| true)]));
+    assert!(t.timed, "{t:?}");
+}
