@@ -622,6 +622,36 @@ fn a_stuck_switch_keeps_its_label_when_the_cylinder_it_releases_springs_back_at_
     assert!(!labels.contains(&"B103.stuck1".to_string()), "{labels:?}");
 }
 
+#[test]
+fn a_switch_that_showed_late_keeps_its_label_when_the_released_cylinder_leaves_late() {
+    // A 50 ms fall of B103 (extended) as the ejector reaches it holds its
+    // rise back: the control releases the cylinder 50 ms late, when it has
+    // gone on to the end of its stroke, and the spring takes 40 ms to bring
+    // it off the switch, where a release on arrival took at most 21 ms.
+    let events = |back: i64| {
+        [
+            (1000, "Y101", true),
+            (1010, "B102", false),
+            (1340, "Y101", false),
+            (1340, "B103", true),
+            (1340 + back, "B103", false),
+            (1340 + back + 220, "B102", true),
+        ]
+    };
+    let on = ["B102"];
+    let labels = fixture_labels("ejector", &|t| t, &on, &events(40), 5000);
+    assert!(
+        labels.contains(&"B103.unexpected_fall".to_string()),
+        "{labels:?}"
+    );
+    // Later than the longest a glitch shows, it is not explained.
+    let labels = fixture_labels("ejector", &|t| t, &on, &events(200), 5000);
+    assert!(
+        !labels.contains(&"B103.unexpected_fall".to_string()),
+        "{labels:?}"
+    );
+}
+
 /// The ejector of `fixtures/diagnosis/ejector.toml` pushes out the last
 /// workpiece of its magazine (B101, "magazine empty", rises 20 ms after the
 /// order) and is released as it arrives (1300 ms); then the operator refills

@@ -23,7 +23,7 @@ use std::fmt::Write as _;
 use petgraph::graph::{DiGraph, NodeIndex};
 
 use super::engine::Engine;
-use super::part::{Clock, PartDiagnoser};
+use super::part::PartDiagnoser;
 use crate::Time;
 
 /// An abstract state of the exploration: a diagnoser state and the clock
@@ -227,7 +227,6 @@ impl Compiled {
                 }
             }
             // Observed scans.
-            let acts = part.actuator_mask();
             for &ch in &masks {
                 if !commands.allow(&part, st.obs, ch) {
                     continue;
@@ -238,13 +237,11 @@ impl Compiled {
                     .iter()
                     .zip(&node.readings)
                     .map(|(clock, r)| {
-                        let reset = match *clock {
-                            Clock::Command => ch & acts != 0,
-                            Clock::Edge { bit, rising } => {
-                                ch >> bit & 1 == 1 && (after_obs >> bit & 1 == 1) == rising
-                            }
-                        };
-                        if reset { Some(0) } else { *r }
+                        if part.restarts(*clock, ch, after_obs) {
+                            Some(0)
+                        } else {
+                            *r
+                        }
                     })
                     .collect();
                 let s = engine.scan(node.state, ch, &node.readings, &after);

@@ -42,6 +42,19 @@ pub enum Clock {
     },
 }
 
+impl Clock {
+    /// Whether the edges `changed`, after which the part reads `after`,
+    /// restart this clock. `acts`: the bits of the part's actuators.
+    pub fn restarts(self, changed: u32, after: u32, acts: u32) -> bool {
+        match self {
+            Clock::Command => changed & acts != 0,
+            Clock::Edge { bit, rising } => {
+                changed >> bit & 1 == 1 && (after >> bit & 1 == 1) == rising
+            }
+        }
+    }
+}
+
 /// One transition of the learned model, in the form the diagnoser runs.
 #[derive(Debug, Clone, Copy)]
 pub struct Move {
@@ -130,8 +143,8 @@ pub struct Mode {
 pub struct Hypothesis {
     /// Index in [`PartDiagnoser::modes`] (0 is normal).
     pub mode: u16,
-    /// [`Hypothesis::GLITCH`], [`Hypothesis::UNTIMED`], [`Hypothesis::STARTED`]
-    /// and [`Hypothesis::SOONER`].
+    /// [`Hypothesis::GLITCH`], [`Hypothesis::UNTIMED`], [`Hypothesis::STARTED`],
+    /// [`Hypothesis::SOONER`], [`Hypothesis::UNSEEN`] and [`Hypothesis::LATE`].
     pub flags: u8,
     /// While a glitch shows: [`Hypothesis::SEEN`] if it began with an observed
     /// edge, else the model transition it hid as it began (its deadline counts
@@ -167,6 +180,16 @@ impl Hypothesis {
     /// to themselves (see [`PartDiagnoser::astray`]). Holds until a sensor
     /// edge of the model dates the element again.
     pub const UNSEEN: u8 = 16;
+    /// A glitch held back a real edge the control waits for, and has just
+    /// let it show, with the control's reaction: the reaction came late, and
+    /// the element went on meanwhile (to the end of its stroke), so its next
+    /// motion may take up to a glitch's longest showing more than learned. Upper bounds and
+    /// deadlines are pushed back by that much. Holds until a sensor edge of
+    /// the model dates the element again.
+    pub const LATE: u8 = 32;
+    /// The flags that hold until a sensor edge of the model dates the
+    /// element again.
+    pub const UNDATED: u8 = Self::SOONER | Self::UNSEEN | Self::LATE;
 
     /// [`Hypothesis::since`] of a glitch that began with an observed edge.
     pub const SEEN: u16 = u16::MAX;
@@ -576,6 +599,12 @@ impl PartDiagnoser {
         }
     }
 
+    /// Whether the edges `changed`, after which the part reads `after`,
+    /// restart clock `clock`.
+    pub fn restarts(&self, clock: Clock, changed: u32, after: u32) -> bool {
+        clock.restarts(changed, after, self.act_mask)
+    }
+
     /// Bits on which a hypothesis's physical state may differ from the observed one.
     fn decoupled(&self, h: Hypothesis) -> u32 {
         match self.modes[h.mode as usize].kind {
@@ -626,7 +655,7 @@ impl PartDiagnoser {
         !m.timed
             || self
                 .reading(h, m.clock, readings)
-                .is_none_or(|c| self.lower_bound(h, m) <= c && c <= m.hi)
+                .is_none_or(|c| self.lower_bound(h, m) <= c && c <= self.upper_bound(h, m))
     }
 
     /// Whether every clock `h` reads is past every lower bound on it.
@@ -641,6 +670,17 @@ impl PartDiagnoser {
     /// `h`'s element may have turned in mid-stroke.
     fn lower_bound(&self, h: Hypothesis, m: &Move) -> Time {
         if h.has(Hypothesis::SOONER) { 0 } else { m.lo }
+    }
+
+    /// The latest reading of `m`'s clock at which `h` takes `m`, or by which
+    /// an expected `m` must have come: later when the control reacted late
+    /// ([`Hypothesis::LATE`]).
+    fn upper_bound(&self, h: Hypothesis, m: &Move) -> Time {
+        if h.has(Hypothesis::LATE) {
+            m.hi + self.glitch_max
+        } else {
+            m.hi
+        }
     }
 
     /// Whether `m` cannot follow, in the same scan, the transitions of `h`
@@ -702,7 +742,9 @@ impl PartDiagnoser {
                 (m.timed || m.command)
                     && m.changed & frozen == 0
                     && (free == 0 || m.changed & !self.act_mask & !free != 0)
-                    && self.reading(h, m.clock, readings).is_some_and(|c| c > m.hi)
+                    && self
+                        .reading(h, m.clock, readings)
+                        .is_some_and(|c| c > self.upper_bound(h, m))
             })
     }
 
@@ -907,8 +949,7 @@ impl PartDiagnoser {
             if visible != 0 && visible & !rest == 0 {
                 let next = Hypothesis {
                     mode,
-                    flags: (h.flags | Hypothesis::GLITCH)
-                        & !(Hypothesis::SOONER | Hypothesis::UNSEEN),
+                    flags: (h.flags | Hypothesis::GLITCH) & !Hypothesis::UNDATED,
                     since: m.id as u16,
                     phys: h.phys ^ sensed,
                 };
@@ -957,6 +998,14 @@ impl PartDiagnoser {
             }
             for mut r in sensed.drain(..) {
                 r.flags &= !Hypothesis::STARTED;
+                if r.has(Hypothesis::LATE)
+                    && !h.has(Hypothesis::LATE)
+                    && !self.reacts_to_late_edge(r, orders)
+                {
+                    // A late edge the control did not react to changed
+                    // nothing of the element's motion.
+                    r.flags &= !Hypothesis::LATE;
+                }
                 if orders != 0 {
                     let applied = self.apply_orders(&mut r, orders);
                     if r.mode != 0 && !self.frozen(r) && applied != 0 {
@@ -1076,8 +1125,7 @@ impl PartDiagnoser {
             .map(move |_| {
                 let mut r = Hypothesis {
                     phys: h.phys ^ (changed & !orders),
-                    flags: h.flags
-                        & !(Hypothesis::STARTED | Hypothesis::SOONER | Hypothesis::UNSEEN),
+                    flags: h.flags & !(Hypothesis::STARTED | Hypothesis::UNDATED),
                     ..h
                 };
                 r.phys ^= self.apply_orders(&mut r, orders);
@@ -1148,7 +1196,7 @@ impl PartDiagnoser {
                             // The edge dates the element again.
                             let next = Hypothesis {
                                 phys: h.phys ^ physical,
-                                flags: h.flags & !(Hypothesis::SOONER | Hypothesis::UNSEEN),
+                                flags: h.flags & !Hypothesis::UNDATED,
                                 ..h
                             };
                             let moved = moved | physical;
@@ -1226,8 +1274,14 @@ impl PartDiagnoser {
                     };
                     self.explain(next, next_rest, moved, after, readings, out);
                 } else if h.has(Hypothesis::GLITCH) && shown == real {
+                    // A glitch that hid a real edge lets it show late.
+                    let late = if h.since == Hypothesis::SEEN {
+                        0
+                    } else {
+                        Hypothesis::LATE
+                    };
                     let next = Hypothesis {
-                        flags: h.flags & !Hypothesis::GLITCH,
+                        flags: (h.flags & !Hypothesis::GLITCH) | late,
                         since: 0,
                         ..h
                     };
@@ -1235,6 +1289,15 @@ impl PartDiagnoser {
                 }
             }
         }
+    }
+
+    /// Whether `orders` are the control's learned reaction to the edge of
+    /// `r`'s glitch sensor, which the glitch has just let show late.
+    fn reacts_to_late_edge(&self, r: Hypothesis, orders: u32) -> bool {
+        let ModeKind::Glitch { bit, .. } = self.modes[r.mode as usize].kind else {
+            return false;
+        };
+        orders != 0 && self.reactions.binary_search(&(1 << bit | orders)).is_ok()
     }
 
     /// The orders among `orders` that reach the plant under `r`: all but its
@@ -1495,7 +1558,7 @@ impl PartDiagnoser {
                 }
                 let c = m.clock as usize;
                 all[c].push(m.lo);
-                all[c].push(m.hi + 1);
+                all[c].push(self.upper_bound(h, m) + 1);
                 let sensed = m.changed & !self.act_mask;
                 // Hidden by the fault, or by a glitch that may start now
                 // (see `hidden_by_glitch`).
@@ -1508,8 +1571,9 @@ impl PartDiagnoser {
             for &k in &self.expected[s] {
                 let m = &self.moves[s][k];
                 if (m.timed || m.command) && self.sees(h, m.clock) && m.changed & frozen == 0 {
-                    timers[m.clock as usize].push(m.hi + 1);
-                    all[m.clock as usize].push(m.hi + 1);
+                    let limit = self.upper_bound(h, m) + 1;
+                    timers[m.clock as usize].push(limit);
+                    all[m.clock as usize].push(limit);
                 }
             }
         }

@@ -4,7 +4,7 @@ use serde::Serialize;
 
 use super::engine::Engine;
 use super::fusion::Coordinator;
-use super::part::{Clock, PartDiagnoser};
+use super::part::PartDiagnoser;
 use crate::model::Model;
 use crate::{Event, Plant, Time, TimeUnit};
 
@@ -454,13 +454,7 @@ impl PlantDiagnoser {
         let after_obs = run.obs ^ changed;
         let acts = engine.part.actuator_mask();
         for (c, clock) in engine.part.clocks.iter().enumerate() {
-            let reset = match *clock {
-                Clock::Command => changed & acts != 0,
-                Clock::Edge { bit, rising } => {
-                    changed >> bit & 1 == 1 && (after_obs >> bit & 1 == 1) == rising
-                }
-            };
-            if reset {
+            if engine.part.restarts(*clock, changed, after_obs) {
                 run.origins[c] = Some(t);
             }
         }
