@@ -166,26 +166,29 @@ fn part_signals(plant: &Plant, template: &FaultTemplate) -> Vec<SignalId> {
 /// `[from, to]` (at the same times or not).
 pub fn same_edges(a: &[Event], b: &[Event], from: Time, to: Time, signals: &[SignalId]) -> bool {
     let edges = |l: &[Event]| {
-        l.iter()
-            .filter(|e| e.t >= from && e.t <= to && signals.contains(&e.signal))
+        window(l, from, to)
+            .iter()
+            .filter(|e| signals.contains(&e.signal))
             .map(|e| (e.signal, e.value))
             .collect::<Vec<_>>()
     };
     edges(a) == edges(b)
 }
 
+/// The events of `log` in `[from, to]`.
+fn window(log: &[Event], from: Time, to: Time) -> &[Event] {
+    let lo = log.partition_point(|e| e.t < from);
+    let hi = log.partition_point(|e| e.t <= to);
+    &log[lo..hi.max(lo)]
+}
+
 /// The time of the first event, in `[from, to]`, where two logs of the same
 /// run differ (a change added, missing or different).
 pub fn first_difference(a: &[Event], b: &[Event], from: Time, to: Time) -> Option<Time> {
-    let window = |l: &[Event]| {
-        let lo = l.partition_point(|e| e.t < from);
-        let hi = l.partition_point(|e| e.t <= to);
-        l[lo..hi].to_vec()
-    };
-    let (a, b) = (window(a), window(b));
+    let (a, b) = (window(a, from, to), window(b, from, to));
     let differs = a
         .iter()
-        .zip(&b)
+        .zip(b)
         .find(|(x, y)| x != y)
         .map(|(x, y)| x.t.min(y.t));
     differs.or_else(|| match a.len().cmp(&b.len()) {

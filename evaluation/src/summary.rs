@@ -31,9 +31,9 @@ pub struct Totals {
     pub detected: usize,
     /// Faulty runs where the fault changed its part's edges, not only their
     /// times.
-    pub reordered: usize,
+    pub edges_changed: usize,
     /// ...and its part left normal after the onset.
-    pub reordered_detected: usize,
+    pub edges_changed_detected: usize,
     /// Runs where the fault's part left normal after the onset.
     pub judged: usize,
     /// ...and every such verdict kept the true label.
@@ -90,8 +90,8 @@ impl Totals {
             self.delays.push((t - r.onset_ms as f64) / 1000.0);
         }
         if !r.timing_only {
-            self.reordered += 1;
-            self.reordered_detected += usize::from(j.detected_ms.is_some());
+            self.edges_changed += 1;
+            self.edges_changed_detected += usize::from(j.detected_ms.is_some());
         }
         self.isolated += usize::from(j.isolated);
         if r.check_isolable == Some(true) {
@@ -174,7 +174,7 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
             percent(t.preempted, t.runs),
             percent(t.sound, t.judged),
             percent(t.detected, t.showed),
-            percent(t.reordered_detected, t.reordered),
+            percent(t.edges_changed_detected, t.edges_changed),
             percent(t.isolable_isolated, t.isolable),
             percent(t.isolable_running_isolated, t.isolable_running),
             percent(t.isolated, t.showed),

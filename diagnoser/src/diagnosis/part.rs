@@ -42,19 +42,6 @@ pub enum Clock {
     },
 }
 
-impl Clock {
-    /// Whether the edges `changed`, after which the part reads `after`,
-    /// restart this clock. `acts`: the bits of the part's actuators.
-    pub fn restarts(self, changed: u32, after: u32, acts: u32) -> bool {
-        match self {
-            Clock::Command => changed & acts != 0,
-            Clock::Edge { bit, rising } => {
-                changed >> bit & 1 == 1 && (after >> bit & 1 == 1) == rising
-            }
-        }
-    }
-}
-
 /// One transition of the learned model, in the form the diagnoser runs.
 #[derive(Debug, Clone, Copy)]
 pub struct Move {
@@ -602,7 +589,12 @@ impl PartDiagnoser {
     /// Whether the edges `changed`, after which the part reads `after`,
     /// restart clock `clock`.
     pub fn restarts(&self, clock: Clock, changed: u32, after: u32) -> bool {
-        clock.restarts(changed, after, self.act_mask)
+        match clock {
+            Clock::Command => changed & self.act_mask != 0,
+            Clock::Edge { bit, rising } => {
+                changed >> bit & 1 == 1 && (after >> bit & 1 == 1) == rising
+            }
+        }
     }
 
     /// Bits on which a hypothesis's physical state may differ from the observed one.
@@ -1291,8 +1283,8 @@ impl PartDiagnoser {
         }
     }
 
-    /// Whether `orders` are the control's learned reaction to the edge of
-    /// `r`'s glitch sensor, which the glitch has just let show late.
+    /// Whether `orders` with the edge of `r`'s glitch sensor, which the glitch
+    /// has just let show late, are a reaction the model learned (in any state).
     fn reacts_to_late_edge(&self, r: Hypothesis, orders: u32) -> bool {
         let ModeKind::Glitch { bit, .. } = self.modes[r.mode as usize].kind else {
             return false;
