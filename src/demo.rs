@@ -34,6 +34,9 @@ pub struct DemoArgs {
     /// Print the rows as a JSON array instead of a table.
     #[arg(long)]
     json: bool,
+    /// Also write the table to docs/demo.md (run from the repository's root).
+    #[arg(long)]
+    write_docs: bool,
 }
 
 /// One row of the experiment.
@@ -61,7 +64,7 @@ const DURATION: Time = 3600 * SECOND;
 const WARM_UP: Time = 600 * SECOND;
 const SPREAD: Time = 600 * SECOND;
 
-/// Where `demo` writes its table, if the directory exists (as in the repository).
+/// Where `demo --write-docs` writes its table.
 const DOCS_TABLE: &str = "docs/demo.md";
 
 /// Runs `gardefou demo`.
@@ -146,6 +149,11 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         });
     }
 
+    let table = markdown(&rows);
+    if args.write_docs {
+        write_docs(&table).map_err(|e| Failure::Io(format!("{DOCS_TABLE}: {e}")))?;
+        eprintln!("table written to {DOCS_TABLE}");
+    }
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     let io = Failure::output;
@@ -154,7 +162,6 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
         writeln!(out, "{text}").map_err(io)?;
         return Ok(());
     }
-    let table = markdown(&rows);
     writeln!(
         out,
         "Closed loop on the simulated sorting line: model learned from one fault-free hour \
@@ -165,10 +172,6 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     )
     .map_err(io)?;
     write!(out, "{table}").map_err(io)?;
-    if Path::new("docs").is_dir() {
-        write_docs(&table).map_err(|e| Failure::Io(format!("{DOCS_TABLE}: {e}")))?;
-        eprintln!("table written to {DOCS_TABLE}");
-    }
     Ok(())
 }
 

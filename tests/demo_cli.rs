@@ -5,14 +5,24 @@ use std::process::Command;
 
 use serde_json::Value;
 
+/// The rows of `demo --json --write-docs`, run in a scratch directory, after
+/// checking that the table it writes is the repository's `docs/demo.md`.
 fn demo_rows() -> Vec<Value> {
     let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::create_dir(dir.path().join("docs")).expect("docs dir");
     let o = Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(["demo", "--json"])
+        .args(["demo", "--json", "--write-docs"])
         .current_dir(dir.path())
         .output()
         .expect("gardefou runs");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let written = std::fs::read_to_string(dir.path().join("docs/demo.md")).expect("demo.md");
+    let shipped = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/demo.md"))
+        .expect("docs/demo.md");
+    assert!(
+        written == shipped,
+        "docs/demo.md is not what demo gives now: run `cargo run --release -- demo --write-docs`"
+    );
     serde_json::from_slice(&o.stdout).expect("a JSON array")
 }
 

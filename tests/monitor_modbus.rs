@@ -4,7 +4,9 @@
 //! the flag coils, and survive a PLC that is killed and restarted or a peer
 //! that answers garbage, without losing a raised flag.
 //!
-//! Needs `python3 -m pip install pymodbus==3.6.9` (`.ci/run` installs it).
+//! Needs pymodbus 3.6.9: `scripts/test` installs it in a virtual environment
+//! of the project's own and names its interpreter in `GARDEFOU_PYTHON`;
+//! without that variable, `python3` must have it.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -112,16 +114,17 @@ fn python_plc(port: u16, from_ms: u64, to_ms: u64, speed: f64) -> Lines {
 
 /// The same, with `flags` up from the start.
 fn python_plc_with(port: u16, from_ms: u64, to_ms: u64, speed: f64, flags: &[&str]) -> Lines {
-    let probe = Command::new("python3")
+    let python = std::env::var("GARDEFOU_PYTHON").unwrap_or_else(|_| "python3".into());
+    let probe = Command::new(&python)
         .args(["-c", "import pymodbus"])
         .status()
-        .expect("python3 runs");
+        .unwrap_or_else(|e| panic!("{python} does not run: {e}"));
     assert!(
         probe.success(),
-        "pymodbus is missing: python3 -m pip install pymodbus==3.6.9"
+        "pymodbus is missing from {python}: run the tests with scripts/test, which installs it"
     );
     let mut plc = Lines::spawn(
-        Command::new("python3")
+        Command::new(&python)
             .args([
                 &path("tests/modbus/pymodbus_plc.py"),
                 &path(PLANT),

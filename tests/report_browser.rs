@@ -6,7 +6,8 @@
 //!
 //! The browser part is skipped, with a message saying what is missing, when
 //! Chromium, Node or `tests/browser/node_modules` is absent — unless
-//! `GARDEFOU_REQUIRE_BROWSER=1`, which CI sets once it has installed them.
+//! `GARDEFOU_REQUIRE_BROWSER=1`, which `scripts/test` sets once it has
+//! installed them.
 
 use std::fs;
 use std::path::{Path, PathBuf};
