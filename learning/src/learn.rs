@@ -775,7 +775,12 @@ impl PartLearner {
             }
         };
 
-        self.untime_outside_edges(&mut transitions, &own_timing, &mut untimed);
+        self.untime_outside_edges(
+            &mut transitions,
+            &own_timing,
+            options.min_samples,
+            &mut untimed,
+        );
         // A reaction (sensor edge and command in one scan) out of a state that a
         // command alone also leaves is the control's choice as much as the
         // plant's: it is not timed.
@@ -897,21 +902,24 @@ impl PartLearner {
     }
 
     /// Untimes the transitions whose sensor edges all come, in most of their
-    /// occurrences, at no regular time on any clock of the part: such an edge
-    /// is the product flow's (a workpiece arriving), and where it came
-    /// regularly in the learning logs, that regularity was the flow's too (an
-    /// upstream machine that always had a workpiece ready), which the part
-    /// cannot promise.
+    /// occurrences or in enough of them to judge (`min_samples`), at no
+    /// regular time on any clock of the part: such an edge is the product
+    /// flow's (a workpiece arriving), and where it came regularly in the
+    /// learning logs, that regularity was the flow's too (an upstream machine
+    /// that had a workpiece ready), which the part cannot promise. A late or
+    /// early one may be one of those that came from outside (a magazine
+    /// refilled just then).
     fn untime_outside_edges(
         &self,
         transitions: &mut [TransitionModel],
         own_timing: &[bool],
+        min_samples: u64,
         untimed: &mut Vec<String>,
     ) {
         let act_mask = self.act_mask();
         let outside = |bit: usize, rising: bool| {
             let (seen, timed) = self.edge_timing(bit, rising, own_timing);
-            timed * 2 < seen
+            timed * 2 < seen || seen - timed >= min_samples
         };
         for (t, acc) in transitions.iter_mut().zip(&self.trans) {
             let sensed = acc.changed & !act_mask;
@@ -924,7 +932,7 @@ impl PartLearner {
             if all_outside {
                 t.timed = false;
                 untimed.push(format!(
-                    "{}: most of its edges' occurrences follow no clock of the part: it follows the product flow",
+                    "{}: its edges often follow no clock of the part: it follows the product flow",
                     t.event
                 ));
             }

@@ -518,7 +518,7 @@ fn arrivals(regular: impl Fn(i64) -> bool) -> Vec<(i64, &'static str, bool)> {
 }
 
 #[test]
-fn an_edge_that_mostly_follows_the_product_flow_is_never_timed() {
+fn an_edge_that_often_follows_the_product_flow_is_never_timed() {
     let plant = cylinder_and_sensor("C");
     let during_stroke = |model: &Model| {
         let cyl = part(model, "cyl");
@@ -546,6 +546,13 @@ fn an_edge_that_mostly_follows_the_product_flow_is_never_timed() {
             .any(|u| u.starts_with("RE(C)") && u.contains("follows the product flow")),
         "{untimed:?}"
     );
+    // Two in three 300 ms after the stroke's end, but the third often enough
+    // (20 times) whenever it comes: a late one may be one of those.
+    let (t, _) = during_stroke(&learn_logs(&plant, &[arrivals(|k| k % 3 != 0)]));
+    assert!(!t.timed, "{t:?}");
+    // All but two 300 ms after the stroke's end: too few to judge, timed.
+    let (t, _) = during_stroke(&learn_logs(&plant, &[arrivals(|k| k % 30 != 0)]));
+    assert!(t.timed, "{t:?}");
     // Every workpiece 300 ms after the stroke's end: the part's own timing.
     let (t, _) = during_stroke(&learn_logs(&plant, &[arrivals(|_| true)]));
     assert!(t.timed, "{t:?}");

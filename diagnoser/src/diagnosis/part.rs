@@ -226,6 +226,14 @@ pub struct PartDiagnoser {
     loose: u32,
     /// The changes of the model's reactions (orders with sensor edges), each once.
     reactions: Vec<u32>,
+    /// Bits of the sensors that no element of the part holds in place: all
+    /// of them on a part without an element (a belt), else `undriven`.
+    free: u32,
+    /// Each learned set of edges of `free` sensors with the state it was
+    /// learned in, as (the state's other bits, edge bits, the edge bits'
+    /// values before), each once: what the product flow can do with the
+    /// actuators and the element where they are.
+    free_edges: Vec<(u32, u32, u32)>,
     /// Bits of the sensors that the part's element does not drive, when the
     /// plant file says which it drives (`drives`), its inputs apart; else 0.
     undriven: u32,
@@ -390,9 +398,25 @@ impl PartDiagnoser {
             });
         }
         let expected = expectations(model, &motion_state, &moves);
+        let drives = part
+            .drives
+            .iter()
+            .filter_map(|&s| bit_of(plant.signals.name(s)))
+            .fold(0u32, |m, b| m | 1 << b)
+            & !inputs;
+        let undriven = if drives == 0 {
+            0
+        } else {
+            ((1 << names.len()) - 1) & !act_mask & !drives & !inputs
+        };
+        let free = if part.element.is_none() {
+            ((1 << names.len()) - 1) & !act_mask & !inputs
+        } else {
+            undriven
+        };
         let loose = loose_mask(model, &bit_of) & !inputs;
         borrow_moves(&vectors, &mut moves, loose);
-        lend_outside_edges(&vectors, &states, &mut moves, loose);
+        lend_outside_edges(&vectors, &states, &mut moves, loose | undriven);
         let mut reactions: Vec<u32> = moves
             .iter()
             .flatten()
@@ -401,6 +425,7 @@ impl PartDiagnoser {
             .collect();
         reactions.sort_unstable();
         reactions.dedup();
+        let free_edges = free_edges(&vectors, &moves, act_mask, free);
 
         let mut modes = vec![Mode {
             label: "N".to_string(),
@@ -409,12 +434,6 @@ impl PartDiagnoser {
             partition: None,
         }];
         let mut partitions: Vec<String> = Vec::new();
-        let drives = part
-            .drives
-            .iter()
-            .filter_map(|&s| bit_of(plant.signals.name(s)))
-            .fold(0u32, |m, b| m | 1 << b)
-            & !inputs;
         for f in &plant.faults {
             let Some(kind) = mode_kind(&f.template, part, drives, &bit_of) else {
                 continue;
@@ -456,11 +475,6 @@ impl PartDiagnoser {
             let l = &mut latest_lo[m.clock as usize];
             *l = (*l).max(m.lo);
         }
-        let undriven = if drives == 0 {
-            0
-        } else {
-            ((1 << names.len()) - 1) & !act_mask & !drives & !inputs
-        };
         Ok(PartDiagnoser {
             kin: kin_states(&vectors, undriven),
             reversals: true,
@@ -468,6 +482,8 @@ impl PartDiagnoser {
             inputs,
             loose,
             reactions,
+            free,
+            free_edges,
             undriven,
             name: part.name.clone(),
             signals,
@@ -1185,12 +1201,19 @@ impl PartDiagnoser {
                             && self.admits(h, m, readings)
                             && !self.too_soon(h, m, moved)
                         {
-                            // The edge dates the element again.
-                            let next = Hypothesis {
-                                phys: h.phys ^ physical,
-                                flags: h.flags & !Hypothesis::UNDATED,
-                                ..h
+                            let phys = h.phys ^ physical;
+                            let flags = if m.lent && physical & !self.undriven & !self.act_mask == 0
+                            {
+                                // An edge from outside the part, which the model
+                                // learned in another state: the state it leads
+                                // to was learned with the element elsewhere (a
+                                // workpiece arriving after the pusher went by).
+                                h.flags | self.unseen_in(phys, false)
+                            } else {
+                                // The edge dates the element again.
+                                h.flags & !Hypothesis::UNDATED
                             };
+                            let next = Hypothesis { phys, flags, ..h };
                             let moved = moved | physical;
                             self.explain(next, rest & !visible, moved, after, readings, out);
                         }
@@ -1207,6 +1230,9 @@ impl PartDiagnoser {
             }
             if h.has(Hypothesis::STARTED) {
                 self.started_motion(h, rest, moved, after, readings, out);
+            }
+            if self.held_astray(h, after) {
+                self.astray_motion(h, rest, moved, after, readings, out);
             }
             // A blocked element holds its state where the normal plant only
             // passes: the learned moves of that state cannot judge the sensors
@@ -1283,13 +1309,51 @@ impl PartDiagnoser {
         }
     }
 
-    /// Whether `orders` with the edge of `r`'s glitch sensor, which the glitch
-    /// has just let show late, are a reaction the model learned (in any state).
+    /// Explains edges among `rest` under a stuck actuator that holds the part
+    /// away from where the control sent it. The part then runs in a regime
+    /// the control never makes (a belt that goes on running carries several
+    /// workpieces at once), which the joint states learned under the control
+    /// do not bound: any edge of a sensor that no element holds in place
+    /// ([`Self::free`]) that the model learned with the actuators and the
+    /// element where they physically are may come, untimed.
+    fn astray_motion(
+        &self,
+        h: Hypothesis,
+        rest: u32,
+        moved: u32,
+        after: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        let held = h.phys & !self.free;
+        for &(key, edges, before) in &self.free_edges {
+            if key != held || h.phys & edges != before {
+                continue;
+            }
+            if let Some(visible) = self.shown_part(h, edges, rest) {
+                let next = Hypothesis {
+                    phys: h.phys ^ edges,
+                    flags: h.flags | Hypothesis::UNTIMED,
+                    ..h
+                };
+                self.explain(next, rest & !visible, moved | edges, after, readings, out);
+            }
+        }
+    }
+
+    /// Whether `orders` are a reaction the model learned (in any state) to
+    /// edges that include that of `r`'s glitch sensor, which the glitch has
+    /// just let show late. The reaction's other edges may have shown on time,
+    /// before it (a workpiece pushed off as the pusher reaches its end).
     fn reacts_to_late_edge(&self, r: Hypothesis, orders: u32) -> bool {
         let ModeKind::Glitch { bit, .. } = self.modes[r.mode as usize].kind else {
             return false;
         };
-        orders != 0 && self.reactions.binary_search(&(1 << bit | orders)).is_ok()
+        orders != 0
+            && self
+                .reactions
+                .iter()
+                .any(|&c| c & self.act_mask == orders && c >> bit & 1 == 1)
     }
 
     /// The orders among `orders` that reach the plant under `r`: all but its
@@ -1607,6 +1671,31 @@ fn loose_mask(model: &PartModel, bit_of: &impl Fn(&str) -> Option<u8>) -> u32 {
         .fold(0, |m, b| m | 1 << b)
 }
 
+/// Each learned set of sensor edges (a move's sensor part) that are all of
+/// `free` sensors, with the bits of the state it leaves outside `free` and the edge bits'
+/// values there, each once.
+fn free_edges(
+    vectors: &[u32],
+    moves: &[Vec<Move>],
+    act_mask: u32,
+    free: u32,
+) -> Vec<(u32, u32, u32)> {
+    let mut out: Vec<(u32, u32, u32)> = vectors
+        .iter()
+        .zip(moves)
+        .flat_map(|(&v, ms)| {
+            ms.iter()
+                .filter(|m| !m.lent)
+                .map(move |m| m.changed & !act_mask)
+                .filter(|&edges| edges != 0 && edges & !free == 0)
+                .map(move |edges| (v & !free, edges, v & edges))
+        })
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
 /// Per motion state, the other motion states whose vectors differ from its
 /// own only in the bits `undriven`.
 fn kin_states(vectors: &[u32], undriven: u32) -> Vec<Vec<usize>> {
@@ -1649,22 +1738,24 @@ fn borrow_moves(vectors: &[u32], moves: &mut [Vec<Move>], loose: u32) {
     }
 }
 
-/// Lends each untimed edge of a `loose` sensor alone (a refill of a magazine,
-/// a workpiece taken away) to every motion state where the sensor reads what
-/// the edge leaves, when the state it leads to is known: such an edge comes
-/// from outside the part, whatever its motion, even if the learning logs only
-/// showed it while the part stood still. Lent moves are untimed.
+/// Lends each untimed edge of an `outside` sensor alone (a refill of a
+/// magazine, a workpiece taken away) to every motion state where the sensor
+/// reads what the edge leaves, when the state it leads to is known: such an
+/// edge comes from outside the part, whatever its motion, even if the
+/// learning logs only showed it while the part stood still. Outside sensors
+/// are those learning found moved from outside the part, and those the
+/// part's element does not drive. Lent moves are untimed.
 fn lend_outside_edges(
     vectors: &[u32],
     states: &HashMap<u32, usize>,
     moves: &mut [Vec<Move>],
-    loose: u32,
+    outside_bits: u32,
 ) {
     let outside: Vec<(u32, Move)> = moves
         .iter()
         .enumerate()
         .flat_map(|(s, ms)| ms.iter().map(move |&m| (vectors[s], m)))
-        .filter(|(_, m)| !m.timed && m.changed.count_ones() == 1 && m.changed & !loose == 0)
+        .filter(|(_, m)| !m.timed && m.changed.count_ones() == 1 && m.changed & !outside_bits == 0)
         .collect();
     for (s, &v) in vectors.iter().enumerate() {
         for &(from, m) in &outside {
