@@ -404,13 +404,10 @@ impl PartDiagnoser {
             .filter_map(|&s| bit_of(plant.signals.name(s)))
             .fold(0u32, |m, b| m | 1 << b)
             & !inputs;
-        let undriven = if drives == 0 {
-            0
-        } else {
-            ((1 << names.len()) - 1) & !act_mask & !drives & !inputs
-        };
+        let sensors = ((1 << names.len()) - 1) & !act_mask & !inputs;
+        let undriven = if drives == 0 { 0 } else { sensors & !drives };
         let free = if part.element.is_none() {
-            ((1 << names.len()) - 1) & !act_mask & !inputs
+            sensors
         } else {
             undriven
         };
