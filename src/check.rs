@@ -18,7 +18,7 @@ use diagnoser::model::Model;
 use diagnoser::{Plant, Time, time};
 use filter_coupling::simplify::PartFilter;
 
-use crate::Failure;
+use diagnoser::Failure;
 
 /// Arguments of `gardefou check`.
 #[derive(Debug, Args)]
@@ -51,26 +51,18 @@ pub struct CheckArgs {
     failures: Option<PathBuf>,
 }
 
-fn bad(e: impl std::fmt::Display) -> Failure {
-    Failure::BadInput(e.to_string())
-}
-
-fn io(e: std::io::Error) -> Failure {
-    Failure::output(e)
-}
-
 /// Runs `gardefou check`.
 pub fn run(args: CheckArgs) -> Result<(), Failure> {
     if let (Some(gen_path), Some(map)) = (&args.generator, &args.failures) {
         return faudes_check(gen_path, map, args.json);
     }
     let (Some(plant_path), Some(model_path)) = (&args.plant, &args.model) else {
-        return Err(bad(
+        return Err(Failure::bad(
             "check needs --plant and --model (or --gen and --failures)",
         ));
     };
-    let plant = Plant::from_path(plant_path).map_err(bad)?;
-    let model = Model::from_path(model_path).map_err(bad)?;
+    let plant = Plant::from_path(plant_path).map_err(Failure::bad)?;
+    let model = Model::from_path(model_path).map_err(Failure::bad)?;
     let diagnoser = PlantDiagnoser::new(
         &plant,
         &model,
@@ -79,7 +71,7 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
             ..DiagnoserOptions::default()
         },
     )
-    .map_err(|e| bad(format!("{}: {e}", model_path.display())))?;
+    .map_err(|e| Failure::bad(format!("{}: {e}", model_path.display())))?;
     if let Some(dir) = &args.dot {
         fs::create_dir_all(dir)
             .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
@@ -119,7 +111,7 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
             if let Some(s) = simple {
                 v["filter"] = serde_json::to_value(&s).map_err(|e| Failure::Io(e.to_string()))?;
             }
-            writeln!(out, "{v}").map_err(io)?;
+            writeln!(out, "{v}").map_err(Failure::output)?;
             continue;
         }
         writeln!(
@@ -136,9 +128,9 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
                 ""
             }
         )
-        .map_err(io)?;
+        .map_err(Failure::output)?;
         for v in &verdicts {
-            write_verdict(&mut out, v).map_err(io)?;
+            write_verdict(&mut out, v).map_err(Failure::output)?;
         }
     }
     if args.json {
@@ -147,16 +139,16 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
             "decentralised_states": sum,
             "centralised_states": product,
         });
-        writeln!(out, "{v}").map_err(io)?;
+        writeln!(out, "{v}").map_err(Failure::output)?;
     } else {
         writeln!(
             out,
             "plant {}: the local diagnosers have {sum} states in all; their product, a centralised diagnoser, would have {product:.0}",
             plant.name
         )
-        .map_err(io)?;
+        .map_err(Failure::output)?;
         if args.filter {
-            write_simplified(&mut out, &simplified).map_err(io)?;
+            write_simplified(&mut out, &simplified).map_err(Failure::output)?;
         }
     }
     Ok(())
@@ -189,7 +181,7 @@ fn simplify(
     truncated: bool,
 ) -> Result<Simplified, Failure> {
     let filter = PartFilter::new(plant, &engine.part.names)
-        .map_err(|e| bad(format!("part '{}': {e}", engine.part.name)))?;
+        .map_err(|e| Failure::bad(format!("part '{}': {e}", engine.part.name)))?;
     // Orders given anywhere would turn elements in mid-stroke everywhere: each
     // is taken to start a whole stroke, or the exploration would not end.
     let mut e = diagnoser::diagnosis::Engine::new(engine.part.without_reversals());
@@ -364,18 +356,19 @@ fn waiting_sentence(label: &str, w: &Waiting) -> String {
 
 fn faudes_check(gen_path: &PathBuf, map: &PathBuf, json: bool) -> Result<(), Failure> {
     let read = |p: &PathBuf| {
-        fs::read_to_string(p).map_err(|e| bad(format!("{}: cannot read: {e}", p.display())))
+        fs::read_to_string(p)
+            .map_err(|e| Failure::bad(format!("{}: cannot read: {e}", p.display())))
     };
-    let g = faudes::parse_generator(&read(gen_path)?, gen_path).map_err(bad)?;
-    let f = faudes::parse_failure_types(&read(map)?, map).map_err(bad)?;
+    let g = faudes::parse_generator(&read(gen_path)?, gen_path).map_err(Failure::bad)?;
+    let f = faudes::parse_failure_types(&read(map)?, map).map_err(Failure::bad)?;
     let result = faudes::event_diagnosability(&g, &f);
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if json {
         let v = serde_json::to_string(&result).map_err(|e| Failure::Io(e.to_string()))?;
-        writeln!(out, "{v}").map_err(io)?;
+        writeln!(out, "{v}").map_err(Failure::output)?;
     } else {
-        write!(out, "{}", faudes::render(&result)).map_err(io)?;
+        write!(out, "{}", faudes::render(&result)).map_err(Failure::output)?;
     }
     Ok(())
 }

@@ -25,8 +25,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use crate::Failure;
 use crate::closed_loop::{self, LoopOutcome, LoopRun};
+use diagnoser::Failure;
 
 /// Arguments of `gardefou demo`.
 #[derive(Debug, Args)]
@@ -156,10 +156,9 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     }
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
-    let io = Failure::output;
     if args.json {
         let text = serde_json::to_string_pretty(&rows).map_err(|e| Failure::Io(e.to_string()))?;
-        writeln!(out, "{text}").map_err(io)?;
+        writeln!(out, "{text}").map_err(Failure::output)?;
         return Ok(());
     }
     writeln!(
@@ -170,8 +169,8 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
          Counts start at the onset.\n",
         model.learned_from.events
     )
-    .map_err(io)?;
-    write!(out, "{table}").map_err(io)?;
+    .map_err(Failure::output)?;
+    write!(out, "{table}").map_err(Failure::output)?;
     Ok(())
 }
 

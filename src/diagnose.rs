@@ -4,70 +4,15 @@ use std::io::{BufWriter, IsTerminal, Write};
 use std::path::PathBuf;
 
 use clap::Args;
-use diagnoser::diagnosis::{DiagnoserOptions, PartSummary, PlantDiagnoser, Verdict, VerdictKind};
+use diagnoser::diagnosis::{PartSummary, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
-use diagnoser::{Plant, Time, TimeFormat, TimeUnit, time};
+use diagnoser::{Plant, TimeFormat};
 use indicatif::{ProgressBar, ProgressStyle};
-use learning::ingest::{IngestOptions, LogFormat, open};
+use learning::ingest::open;
 
-use crate::Failure;
+use diagnoser::Failure;
 
-/// What `diagnose` and `report` both read: the plant, the model, the logs, and
-/// how to replay them.
-#[derive(Debug, Args)]
-pub struct ReplayArgs {
-    /// Plant file: signals, parts, faults and partitions.
-    #[arg(long)]
-    pub plant: PathBuf,
-    /// Learned model (from `gardefou learn`).
-    #[arg(long)]
-    pub model: PathBuf,
-    /// Logs to replay (any form); each is replayed from its own initial values.
-    #[arg(required = true, value_name = "LOG")]
-    pub logs: Vec<PathBuf>,
-    /// Log form (default: detected from each file's header): events-csv,
-    /// intervals-csv, scans-csv, events-parquet, intervals-parquet, scans-parquet,
-    /// candump or vcd.
-    #[arg(long)]
-    pub format: Option<LogFormat>,
-    /// Unit of numeric timestamps in the logs (default: the plant file's).
-    #[arg(long)]
-    pub time_unit: Option<TimeUnit>,
-    /// Longest an unexpected sensor edge shows before the sensor reads its real
-    /// value again (longer, it is a stuck sensor).
-    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
-    pub glitch_max: Time,
-    /// Time at which the logs end, when later than their last event (in the
-    /// logs' time unit): deadlines up to it still count. Default: the log's end
-    /// row if it has one (events form), else its last event.
-    #[arg(long, value_name = "TIME")]
-    pub end: Option<f64>,
-}
-
-impl ReplayArgs {
-    /// How the logs are read.
-    pub fn ingest(&self, plant: &Plant) -> IngestOptions {
-        IngestOptions {
-            format: self.format,
-            time_unit: self.time_unit.unwrap_or(plant.time_unit),
-            ..IngestOptions::default()
-        }
-    }
-
-    /// The diagnosers' settings.
-    pub fn options(&self) -> DiagnoserOptions {
-        DiagnoserOptions {
-            glitch_max: self.glitch_max,
-            ..DiagnoserOptions::default()
-        }
-    }
-
-    /// `--end` in nanoseconds.
-    pub fn end(&self, plant: &Plant) -> Option<Time> {
-        let unit = self.time_unit.unwrap_or(plant.time_unit);
-        self.end.map(|e| (e * unit.nanos() as f64).round() as Time)
-    }
-}
+use crate::args::ReplayArgs;
 
 /// Arguments of `gardefou diagnose`.
 #[derive(Debug, Args)]
@@ -84,37 +29,13 @@ pub struct DiagnoseArgs {
     report: Option<PathBuf>,
 }
 
-fn bad(e: impl std::fmt::Display) -> Failure {
-    Failure::BadInput(e.to_string())
-}
-
-fn io(e: std::io::Error) -> Failure {
-    Failure::output(e)
-}
-
-/// One verdict as a JSON line of SPEC §3, its time in the log's representation.
-pub fn verdict_line(v: &Verdict, time: TimeFormat, log: Option<&str>) -> String {
-    let t = match time {
-        TimeFormat::Numeric(_) => time.format(v.t),
-        TimeFormat::Rfc3339 => serde_json::Value::String(time.format(v.t)).to_string(),
-    };
-    let body = serde_json::to_string(v).unwrap_or_else(|_| "{}".to_string());
-    let log = log
-        .map(|l| format!("\"log\":{},", serde_json::Value::String(l.to_string())))
-        .unwrap_or_default();
-    format!(
-        "{{\"t\":{t},{log}{}",
-        body.strip_prefix('{').unwrap_or(&body)
-    )
-}
-
 /// Runs `gardefou diagnose`.
 pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     let replay = &args.replay;
-    let plant = Plant::from_path(&replay.plant).map_err(bad)?;
-    let model = Model::from_path(&replay.model).map_err(bad)?;
+    let plant = Plant::from_path(&replay.plant).map_err(Failure::bad)?;
+    let model = Model::from_path(&replay.model).map_err(Failure::bad)?;
     let mut diagnoser = PlantDiagnoser::new(&plant, &model, &replay.options())
-        .map_err(|e| bad(format!("{}: {e}", replay.model.display())))?;
+        .map_err(|e| Failure::bad(format!("{}: {e}", replay.model.display())))?;
     let ingest = replay.ingest(&plant);
     let bar = if std::io::stderr().is_terminal() {
         let bar = ProgressBar::new_spinner();
@@ -131,14 +52,14 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     let several = replay.logs.len() > 1;
     let mut summaries: Vec<(String, TimeFormat, Vec<PartSummary>)> = Vec::new();
     for path in &replay.logs {
-        let stream = open(path, &plant, &ingest).map_err(bad)?;
+        let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
         let time = stream.time;
         let name = path.display().to_string();
         let log = several.then_some(name.as_str());
         let mut write_err: Option<std::io::Error> = None;
         let mut emit = |v: Verdict| {
             if !args.summary && write_err.is_none() {
-                let line = verdict_line(&v, time, log);
+                let line = v.json_line(time, log);
                 if let Err(e) = writeln!(out, "{line}") {
                     write_err = Some(e);
                 }
@@ -148,7 +69,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
         let mut last = stream.start;
         let mut read = 0u64;
         for batch in stream.batches {
-            let batch = batch.map_err(bad)?;
+            let batch = batch.map_err(Failure::bad)?;
             for &e in &batch {
                 diagnoser.push(e, &mut emit);
             }
@@ -165,14 +86,14 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
                 return Ok(());
             }
-            return Err(io(e));
+            return Err(Failure::output(e));
         }
         summaries.push((name, time, summary));
     }
     bar.finish_and_clear();
     if args.summary {
         let colour = std::io::stdout().is_terminal() && std::env::var_os("NO_COLOR").is_none();
-        write_summary(&mut out, &summaries, several, colour).map_err(io)?;
+        write_summary(&mut out, &summaries, several, colour).map_err(Failure::output)?;
     }
     if let Some(path) = &args.report {
         let request = crate::report::Request {
@@ -189,7 +110,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
         );
     }
     match out.flush() {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(io(e)),
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(Failure::output(e)),
         _ => Ok(()),
     }
 }

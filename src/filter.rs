@@ -14,8 +14,8 @@ use filter_coupling::st::{StOptions, generate};
 
 use learning::ingest::{IngestOptions, LogFormat, open};
 
-use crate::Failure;
-use crate::simulate::CouplingArg;
+use crate::args::CouplingArg;
+use diagnoser::Failure;
 
 /// Arguments of `gardefou filter`.
 #[derive(Debug, Args)]
@@ -106,10 +106,6 @@ struct RewriteArgs {
     suspects: bool,
 }
 
-fn bad(e: impl std::fmt::Display) -> Failure {
-    Failure::BadInput(e.to_string())
-}
-
 /// Runs `gardefou filter`.
 pub fn run(args: FilterArgs) -> Result<(), Failure> {
     match args.command {
@@ -120,8 +116,8 @@ pub fn run(args: FilterArgs) -> Result<(), Failure> {
 }
 
 fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
-    let model = Model::from_path(&args.model).map_err(bad)?;
+    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
+    let model = Model::from_path(&args.model).map_err(Failure::bad)?;
     let mut estimates = Vec::new();
     for part in &model.parts {
         for e in &part.sensor_estimates {
@@ -131,7 +127,7 @@ fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
             if wanted {
                 estimates.push(
                     Estimate::from_model(&e.sensor, &partition, &e.expr, &e.uncertain)
-                        .map_err(|m| bad(format!("{}: {m}", args.model.display())))?,
+                        .map_err(|m| Failure::bad(format!("{}: {m}", args.model.display())))?,
                 );
             }
         }
@@ -141,7 +137,7 @@ fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
             .iter()
             .any(|e| format!("def_{}", e.partition) == *f)
         {
-            return Err(bad(format!(
+            return Err(Failure::bad(format!(
                 "--flags: '{f}' is not the flag of a sensor with a learned estimate"
             )));
         }
@@ -184,7 +180,7 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
         (Some(CouplingArg::Def), false) => Coupling::Flags,
         (Some(CouplingArg::None), false) => Coupling::None,
         (Some(c @ (CouplingArg::None | CouplingArg::Def)), true) => {
-            return Err(bad(format!(
+            return Err(Failure::bad(format!(
                 "--suspects means --coupling def+suspect, not --coupling {}",
                 c.to_possible_value()
                     .map_or_else(String::new, |v| v.get_name().to_string())
@@ -201,17 +197,17 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
         && !args.name.contains("__")
         && !args.name.ends_with('_');
     if !identifier {
-        return Err(bad(format!(
+        return Err(Failure::bad(format!(
             "--name: '{}' is not a Structured Text identifier",
             args.name
         )));
     }
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
+    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
     let model = match &args.model {
         Some(path) => {
-            let model = Model::from_path(path).map_err(bad)?;
+            let model = Model::from_path(path).map_err(Failure::bad)?;
             if model.plant != plant.name {
-                return Err(bad(format!(
+                return Err(Failure::bad(format!(
                     "{}: the model was learned for plant '{}', not '{}'",
                     path.display(),
                     model.plant,
@@ -221,7 +217,7 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
             Some(model)
         }
         None if coupling != Coupling::None => {
-            return Err(bad(format!(
+            return Err(Failure::bad(format!(
                 "--model is needed for --coupling {} (the sensors' estimates); use --coupling none without it",
                 coupling.name()
             )));
@@ -230,7 +226,7 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
     };
     let filter = Filter::new(&plant, model.as_ref(), coupling).map_err(|m| {
         let source = args.model.as_ref().unwrap_or(&args.plant);
-        bad(format!("{}: {m}", source.display()))
+        Failure::bad(format!("{}: {m}", source.display()))
     })?;
     let options = StOptions {
         mode: if args.control {
@@ -241,7 +237,7 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
         name: args.name,
     };
     let text = generate(&plant, &filter, &options)
-        .map_err(|m| bad(format!("{}: {m}", args.plant.display())))?;
+        .map_err(|m| Failure::bad(format!("{}: {m}", args.plant.display())))?;
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     out.write_all(text.as_bytes()).map_err(Failure::output)?;
@@ -249,11 +245,11 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
 }
 
 fn check_cmd(args: CheckArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
+    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
     let model = match &args.model {
-        Some(path) => Some(Model::from_path(path).map_err(bad)?),
+        Some(path) => Some(Model::from_path(path).map_err(Failure::bad)?),
         None if !args.flags.is_empty() => {
-            return Err(bad(
+            return Err(Failure::bad(
                 "--flags needs --model: a flagged sensor reads its learned estimate",
             ));
         }
@@ -275,17 +271,19 @@ fn check_cmd(args: CheckArgs) -> Result<(), Failure> {
     let (mut episodes, mut scans) = (0u64, 0u64);
     for path in &args.logs {
         let mut filter = Filter::new(&plant, model.as_ref(), coupling).map_err(|m| {
-            bad(format!(
+            Failure::bad(format!(
                 "{}: {m}",
                 args.model.as_ref().unwrap_or(&args.plant).display()
             ))
         })?;
         for f in &args.flags {
             if !filter.set(f, true) {
-                return Err(bad(format!("--flags: '{f}' is not a flag of the plant")));
+                return Err(Failure::bad(format!(
+                    "--flags: '{f}' is not a flag of the plant"
+                )));
             }
         }
-        let stream = open(path, &plant, &ingest).map_err(bad)?;
+        let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
         let time = stream.time;
         let name = path.display().to_string();
         let mut io = stream.initial.clone();
@@ -326,7 +324,7 @@ fn check_cmd(args: CheckArgs) -> Result<(), Failure> {
         check(t, &io, &mut out).map_err(Failure::output)?;
         let mut pending: Option<diagnoser::Time> = None;
         for batch in stream.batches {
-            let batch = batch.map_err(bad)?;
+            let batch = batch.map_err(Failure::bad)?;
             for e in &batch {
                 if pending.is_some_and(|p| p != e.t) {
                     // The scan at `p` is complete.

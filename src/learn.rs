@@ -14,7 +14,7 @@ use learning::ingest::{IngestOptions, LogFormat, open};
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
 
-use crate::Failure;
+use diagnoser::Failure;
 
 /// Arguments of `gardefou learn`.
 #[derive(Debug, Args)]
@@ -70,27 +70,23 @@ pub struct LearnArgs {
     quiet: bool,
 }
 
-fn bad(e: impl std::fmt::Display) -> Failure {
-    Failure::BadInput(e.to_string())
-}
-
 /// Runs `gardefou learn`.
 pub fn run(args: LearnArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
+    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
     if !(0.0..0.5).contains(&args.trim) {
-        return Err(bad(format!(
+        return Err(Failure::bad(format!(
             "bad --trim {}: expected a share in [0, 0.5)",
             args.trim
         )));
     }
     if !(args.margin_rel.is_finite() && args.margin_rel >= 0.0) {
-        return Err(bad(format!(
+        return Err(Failure::bad(format!(
             "bad --margin-rel {}: expected a fraction >= 0",
             args.margin_rel
         )));
     }
     if !(args.drift.is_finite() && args.drift >= 0.0) {
-        return Err(bad(format!(
+        return Err(Failure::bad(format!(
             "bad --drift {}: expected a number of standard deviations >= 0",
             args.drift
         )));
@@ -105,10 +101,10 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
     if args.suggest_parts {
         let mut streams = Vec::new();
         for path in &args.logs {
-            streams.push(open(path, &plant, &ingest).map_err(bad)?);
+            streams.push(open(path, &plant, &ingest).map_err(Failure::bad)?);
         }
-        let suggestion =
-            suggest_parts(&plant.signals, streams, &SuggestOptions::default()).map_err(bad)?;
+        let suggestion = suggest_parts(&plant.signals, streams, &SuggestOptions::default())
+            .map_err(Failure::bad)?;
         bar.finish_and_clear();
         print!("{}", to_toml(&suggestion, &plant.signals));
         return Ok(());
@@ -122,16 +118,16 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         learn_inputs: args.learn_inputs,
         ..LearnOptions::default()
     };
-    let mut learner = Learner::new(&plant, options).map_err(bad)?;
+    let mut learner = Learner::new(&plant, options).map_err(Failure::bad)?;
     let mut total = 0u64;
     for path in &args.logs {
-        let stream = open(path, &plant, &ingest).map_err(bad)?;
+        let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
         let before = total;
         learner
             .learn_log(stream, |n| {
                 bar.set_position(before + n);
             })
-            .map_err(bad)?;
+            .map_err(Failure::bad)?;
         total = bar.position();
     }
     let unassigned = learner.unassigned_sensors().join(", ");
@@ -168,8 +164,8 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
     }
 
     for path in &args.checks {
-        let stream = open(path, &plant, &ingest).map_err(bad)?;
-        let found = check(&model, &plant, stream).map_err(bad)?;
+        let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
+        let found = check(&model, &plant, stream).map_err(Failure::bad)?;
         for v in &found {
             println!(
                 "{}",

@@ -6,7 +6,9 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use diagnoser::Failure;
 
+mod args;
 mod check;
 mod closed_loop;
 mod demo;
@@ -49,28 +51,6 @@ enum Command {
     /// A self-contained HTML fault review: verdicts, timelines, explanations and
     /// pictures of the models.
     Report(report::ReportArgs),
-}
-
-/// A failure: bad input (exit code 2) or a failure of the machine (exit code 1).
-#[derive(Debug)]
-pub enum Failure {
-    /// The user's input is wrong: one line saying where and why.
-    BadInput(String),
-    /// Something outside the user's input failed (disk full, ...).
-    Io(String),
-    /// The reader of standard output went away (e.g. `| head`): not an error.
-    Closed,
-}
-
-impl Failure {
-    /// A failure to write the output.
-    pub fn output(e: std::io::Error) -> Failure {
-        if e.kind() == std::io::ErrorKind::BrokenPipe {
-            Failure::Closed
-        } else {
-            Failure::Io(format!("cannot write the output: {e}"))
-        }
-    }
 }
 
 fn main() -> ExitCode {

@@ -16,7 +16,9 @@ use diagnoser::{MS, Time, time};
 use filter_coupling::filter::{Coupling, Filter};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::Failure;
+use diagnoser::Failure;
+
+use crate::args::CouplingArg;
 use crate::closed_loop::CoupledPlc;
 use crate::virtual_plc::{self, VirtualPlc};
 
@@ -61,30 +63,6 @@ pub enum ControlKind {
     /// Safe control by constraints through the safety filter, flags unused
     /// (sorting line only).
     Constraints,
-}
-
-/// How a filter uses the diagnosers' flags (the virtual PLC's, the generated
-/// Structured Text's, the report's replay).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum CouplingArg {
-    /// The constraints read the sensors as they are.
-    None,
-    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
-    /// element partition's part to its fallback.
-    Def,
-    /// As `def`, and `suspect_<partition>` also switches a sensor to its estimate.
-    #[value(name = "def+suspect")]
-    DefSuspect,
-}
-
-impl From<CouplingArg> for Coupling {
-    fn from(c: CouplingArg) -> Coupling {
-        match c {
-            CouplingArg::None => Coupling::None,
-            CouplingArg::Def => Coupling::Flags,
-            CouplingArg::DefSuspect => Coupling::FlagsAndSuspects,
-        }
-    }
 }
 
 /// Arguments of `gardefou simulate`.

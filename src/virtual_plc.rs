@@ -37,8 +37,8 @@ use tokio_modbus::server::Service;
 use tokio_modbus::server::tcp::Server;
 use tokio_modbus::{ExceptionCode, Request, Response};
 
-use crate::Failure;
 use crate::closed_loop::{CoupledPlc, Watched};
+use diagnoser::Failure;
 
 /// Most coils or discrete inputs one read may ask for (Modbus application
 /// protocol, functions 1 and 2).

@@ -82,3 +82,32 @@ pub fn line_column(text: &str, offset: usize) -> (usize, usize) {
     };
     (line, column)
 }
+
+/// How a command fails: bad input (exit code 2) or a failure of the machine (exit
+/// code 1). Every library that a verb of the command line calls returns it, so
+/// that the binary maps it to its exit code in one place.
+#[derive(Debug)]
+pub enum Failure {
+    /// The user's input is wrong: one line saying where and why.
+    BadInput(String),
+    /// Something outside the user's input failed (disk full, ...).
+    Io(String),
+    /// The reader of standard output went away (e.g. `| head`): not an error.
+    Closed,
+}
+
+impl Failure {
+    /// Bad input, in one line: what `e` says.
+    pub fn bad(e: impl fmt::Display) -> Failure {
+        Failure::BadInput(e.to_string())
+    }
+
+    /// A failure to write the output.
+    pub fn output(e: std::io::Error) -> Failure {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            Failure::Closed
+        } else {
+            Failure::Io(format!("cannot write the output: {e}"))
+        }
+    }
+}

@@ -20,7 +20,7 @@ pub mod plant;
 pub mod signal;
 pub mod time;
 
-pub use error::{Located, Location};
+pub use error::{Failure, Located, Location};
 pub use fault::FaultTemplate;
 pub use plant::Plant;
 pub use signal::{Event, Signal, SignalId, SignalKind, SignalTable};

@@ -41,7 +41,7 @@ use learning::ingest::candump::PdoDecoder;
 use tokio::sync::mpsc;
 
 use super::source::{Item, Link, LiveClock, Source};
-use crate::Failure;
+use diagnoser::Failure;
 
 /// Size of SocketCAN's `struct can_frame` (`CAN_MTU`).
 pub const CAN_FRAME_SIZE: usize = 16;

@@ -37,7 +37,7 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 
 use super::status::Status;
-use crate::Failure;
+use diagnoser::Failure;
 
 /// A connection with no byte read or written for this long is closed.
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(10);

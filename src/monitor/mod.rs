@@ -46,9 +46,8 @@ use learning::ingest::LogFormat;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
-use crate::Failure;
-use crate::diagnose::verdict_line;
 use crate::flags::FlagBoard;
+use diagnoser::Failure;
 use source::{FlagImage, Item, Link, Source};
 use status::Status;
 
@@ -123,17 +122,13 @@ pub struct MonitorArgs {
     glitch_max: Time,
 }
 
-fn bad(e: impl std::fmt::Display) -> Failure {
-    Failure::BadInput(e.to_string())
-}
-
 /// Runs `gardefou monitor`.
 pub fn run(args: MonitorArgs) -> Result<(), Failure> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
-        return Err(bad("--speed: must be a positive number"));
+        return Err(Failure::bad("--speed: must be a positive number"));
     }
-    let plant = Plant::from_path(&args.plant).map_err(bad)?;
-    let model = Model::from_path(&args.model).map_err(bad)?;
+    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
+    let model = Model::from_path(&args.model).map_err(Failure::bad)?;
     let diagnoser = PlantDiagnoser::new(
         &plant,
         &model,
@@ -144,7 +139,7 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
             polled: args.modbus.is_some() || args.can.is_some(),
         },
     )
-    .map_err(|e| bad(format!("{}: {e}", args.model.display())))?;
+    .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
     let unit = args.time_unit.unwrap_or(plant.time_unit);
     let output: Box<dyn Write> = match &args.output {
         Some(path) => Box::new(
@@ -211,7 +206,7 @@ impl Writer {
         let text = if self.terminal {
             readable(v, self.time)
         } else {
-            verdict_line(v, self.time, None)
+            v.json_line(self.time, None)
         };
         if let Err(e) = writeln!(self.out, "{text}").and_then(|()| self.out.flush()) {
             self.error = Some(e);

@@ -48,7 +48,7 @@ use diagnoser::plant::{ModbusMap, ModbusTable};
 use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
 
 use super::source::{Item, Link, LiveClock, Source};
-use crate::Failure;
+use diagnoser::Failure;
 
 /// Longest wait for a reply: a poll unanswered this long is skipped, and a
 /// link that answers nothing this long is lost.

@@ -15,7 +15,7 @@ use learning::ingest::{IngestOptions, LogFormat, open};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
-use crate::Failure;
+use diagnoser::Failure;
 
 /// What a source sends.
 #[derive(Debug)]

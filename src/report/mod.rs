@@ -28,9 +28,9 @@ use filter_coupling::filter::Coupling;
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::ingest::open;
 
-use crate::Failure;
-use crate::diagnose::ReplayArgs;
-use crate::simulate::CouplingArg;
+use crate::args::CouplingArg;
+use crate::args::ReplayArgs;
+use diagnoser::Failure;
 
 /// How the model pictures are drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -71,14 +71,10 @@ pub struct Request<'a> {
     pub layout: Option<pictures::Layout>,
 }
 
-fn bad(e: impl std::fmt::Display) -> Failure {
-    Failure::BadInput(e.to_string())
-}
-
 /// Runs `gardefou report`.
 pub fn run(args: ReportArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.replay.plant).map_err(bad)?;
-    let model = Model::from_path(&args.replay.model).map_err(bad)?;
+    let plant = Plant::from_path(&args.replay.plant).map_err(Failure::bad)?;
+    let model = Model::from_path(&args.replay.model).map_err(Failure::bad)?;
     let request = Request {
         replay: &args.replay,
         coupling: match args.coupling {
@@ -128,19 +124,19 @@ pub fn build(plant: &Plant, model: &Model, request: &Request<'_>) -> Result<Stri
     };
     let mut replays = Vec::new();
     for path in &args.logs {
-        let stream = open(path, plant, &ingest).map_err(bad)?;
+        let stream = open(path, plant, &ingest).map_err(Failure::bad)?;
         let name = path.display().to_string();
         bar.set_message(name.clone());
         let replay = collect::replay(setup, stream, &name, args.end(plant), |n| {
             bar.set_position(n)
         })
-        .map_err(|e| bad(format!("{name}: {e}")))?;
+        .map_err(|e| Failure::bad(format!("{name}: {e}")))?;
         replays.push(replay);
     }
     bar.finish_and_clear();
     let pictures = match request.layout {
         Some(layout) => html::pictures(plant, model, &options, layout)
-            .map_err(|e| bad(format!("{}: {e}", args.model.display())))?,
+            .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?,
         None => Vec::new(),
     };
     Ok(html::page(&html::Page {

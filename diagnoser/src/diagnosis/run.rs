@@ -6,7 +6,7 @@ use super::engine::Engine;
 use super::fusion::Coordinator;
 use super::part::PartDiagnoser;
 use crate::model::Model;
-use crate::{Event, Plant, Time, TimeUnit};
+use crate::{Event, Plant, Time, TimeFormat, TimeUnit};
 
 /// A part's verdict (SPEC §3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -52,6 +52,25 @@ pub struct Verdict {
     pub suspects: Vec<String>,
     /// What was observed, in words.
     pub reason: String,
+}
+
+impl Verdict {
+    /// The verdict as a JSON line of SPEC §3, its time in the log's
+    /// representation, naming the log it came from when there are several.
+    pub fn json_line(&self, time: TimeFormat, log: Option<&str>) -> String {
+        let t = match time {
+            TimeFormat::Numeric(_) => time.format(self.t),
+            TimeFormat::Rfc3339 => serde_json::Value::String(time.format(self.t)).to_string(),
+        };
+        let body = serde_json::to_string(self).unwrap_or_else(|_| "{}".to_string());
+        let log = log
+            .map(|l| format!("\"log\":{},", serde_json::Value::String(l.to_string())))
+            .unwrap_or_default();
+        format!(
+            "{{\"t\":{t},{log}{}",
+            body.strip_prefix('{').unwrap_or(&body)
+        )
+    }
 }
 
 /// Settings of the diagnosers.

@@ -1,0 +1,91 @@
+//! Arguments that several verbs share: what a replay reads, and how a filter
+//! uses the diagnosers' flags.
+
+use std::path::PathBuf;
+
+use clap::{Args, ValueEnum};
+use diagnoser::diagnosis::DiagnoserOptions;
+use diagnoser::{Plant, Time, TimeUnit, time};
+use filter_coupling::filter::Coupling;
+use learning::ingest::{IngestOptions, LogFormat};
+
+/// What `diagnose` and `report` both read: the plant, the model, the logs, and
+/// how to replay them.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// Plant file: signals, parts, faults and partitions.
+    #[arg(long)]
+    pub plant: PathBuf,
+    /// Learned model (from `gardefou learn`).
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Logs to replay (any form); each is replayed from its own initial values.
+    #[arg(required = true, value_name = "LOG")]
+    pub logs: Vec<PathBuf>,
+    /// Log form (default: detected from each file's header): events-csv,
+    /// intervals-csv, scans-csv, events-parquet, intervals-parquet, scans-parquet,
+    /// candump or vcd.
+    #[arg(long)]
+    pub format: Option<LogFormat>,
+    /// Unit of numeric timestamps in the logs (default: the plant file's).
+    #[arg(long)]
+    pub time_unit: Option<TimeUnit>,
+    /// Longest an unexpected sensor edge shows before the sensor reads its real
+    /// value again (longer, it is a stuck sensor).
+    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
+    pub glitch_max: Time,
+    /// Time at which the logs end, when later than their last event (in the
+    /// logs' time unit): deadlines up to it still count. Default: the log's end
+    /// row if it has one (events form), else its last event.
+    #[arg(long, value_name = "TIME")]
+    pub end: Option<f64>,
+}
+
+impl ReplayArgs {
+    /// How the logs are read.
+    pub fn ingest(&self, plant: &Plant) -> IngestOptions {
+        IngestOptions {
+            format: self.format,
+            time_unit: self.time_unit.unwrap_or(plant.time_unit),
+            ..IngestOptions::default()
+        }
+    }
+
+    /// The diagnosers' settings.
+    pub fn options(&self) -> DiagnoserOptions {
+        DiagnoserOptions {
+            glitch_max: self.glitch_max,
+            ..DiagnoserOptions::default()
+        }
+    }
+
+    /// `--end` in nanoseconds.
+    pub fn end(&self, plant: &Plant) -> Option<Time> {
+        let unit = self.time_unit.unwrap_or(plant.time_unit);
+        self.end.map(|e| (e * unit.nanos() as f64).round() as Time)
+    }
+}
+
+/// How a filter uses the diagnosers' flags (the virtual PLC's, the generated
+/// Structured Text's, the report's replay).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CouplingArg {
+    /// The constraints read the sensors as they are.
+    None,
+    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
+    /// element partition's part to its fallback.
+    Def,
+    /// As `def`, and `suspect_<partition>` also switches a sensor to its estimate.
+    #[value(name = "def+suspect")]
+    DefSuspect,
+}
+
+impl From<CouplingArg> for Coupling {
+    fn from(c: CouplingArg) -> Coupling {
+        match c {
+            CouplingArg::None => Coupling::None,
+            CouplingArg::Def => Coupling::Flags,
+            CouplingArg::DefSuspect => Coupling::FlagsAndSuspects,
+        }
+    }
+}
