@@ -458,7 +458,52 @@ impl Checker<'_> {
     }
 
     fn build(&self, raw: RawPlant) -> Result<Plant, PlantError> {
-        let scan_period = match &raw.scan_period_ms {
+        let scan_period = self.scan_period(raw.scan_period_ms.as_ref())?;
+        let time_unit = self.time_unit(raw.time_unit.as_ref())?;
+        let signals = self.signals(raw.signals)?;
+        let variables = self.variables(raw.variables, &signals)?;
+        let mut parts: Vec<Part> = Vec::new();
+        let mut elements: HashMap<String, usize> = HashMap::new();
+        for p in raw.parts {
+            let part = self.part(p, &parts, &signals, &mut elements)?;
+            parts.push(part);
+        }
+        let faults = match raw.faults {
+            Some(entries) => self.faults(entries, &signals, &parts, &elements)?,
+            None => default_faults(&parts, &signals),
+        };
+        let partitions = match raw.partitions {
+            Some(entries) => self.partitions(entries, &faults)?,
+            None => default_partitions(&faults, &parts, &signals),
+        };
+        let known = self.known_names(&raw.observers, &signals, &variables, &partitions)?;
+        let observers = self.observers(raw.observers, &known, &signals)?;
+        let constraints = self.constraints(raw.constraints, "constraints", &known, &signals)?;
+        let functional = self.constraints(raw.functional, "functional", &known, &signals)?;
+        let can = self.can(raw.can, &signals)?;
+
+        let mut plant = Plant {
+            name: raw.name,
+            scan_period,
+            time_unit,
+            signals,
+            variables,
+            parts,
+            faults,
+            partitions,
+            observers,
+            constraints,
+            functional,
+            can,
+            modbus: Vec::new(),
+        };
+        plant.modbus = self.modbus(raw.modbus, &plant)?;
+        Ok(plant)
+    }
+
+    /// `scan_period_ms`: positive, at most a minute (default 10 ms).
+    fn scan_period(&self, scan_period_ms: Option<&Spanned<f64>>) -> Result<Time, PlantError> {
+        Ok(match scan_period_ms {
             None => 10 * MS,
             Some(s) => {
                 let ms = *s.get_ref();
@@ -471,17 +516,24 @@ impl Checker<'_> {
                 }
                 (ms * MS as f64).round() as Time
             }
-        };
-        let time_unit = match &raw.time_unit {
+        })
+    }
+
+    /// `time_unit` of the plant's logs (default ms).
+    fn time_unit(&self, time_unit: Option<&Spanned<String>>) -> Result<TimeUnit, PlantError> {
+        Ok(match time_unit {
             None => TimeUnit::Ms,
             Some(u) => u
                 .get_ref()
                 .parse()
                 .map_err(|e: String| self.at(u.span(), "time_unit", e))?,
-        };
+        })
+    }
 
+    /// `[signals]`: valid names, each declared once, at least one.
+    fn signals(&self, raw: Vec<(Spanned<String>, RawSignal)>) -> Result<SignalTable, PlantError> {
         let mut signals = SignalTable::new();
-        for (name, sig) in raw.signals {
+        for (name, sig) in raw {
             check_name(name.get_ref()).map_err(|m| self.at(name.span(), "signals", m))?;
             let signal = Signal {
                 name: name.get_ref().clone(),
@@ -502,9 +554,17 @@ impl Checker<'_> {
                 "no signals declared",
             ));
         }
+        Ok(signals)
+    }
 
+    /// `variables`: valid names, none a signal's, each declared once.
+    fn variables(
+        &self,
+        raw: Vec<Spanned<String>>,
+        signals: &SignalTable,
+    ) -> Result<Vec<String>, PlantError> {
         let mut variables = Vec::new();
-        for v in raw.variables {
+        for v in raw {
             check_name(v.get_ref()).map_err(|m| self.at(v.span(), "variables", m))?;
             if signals.id(v.get_ref()).is_some() || variables.contains(v.get_ref()) {
                 return Err(self.at(
@@ -515,168 +575,189 @@ impl Checker<'_> {
             }
             variables.push(v.into_inner());
         }
+        Ok(variables)
+    }
 
-        let mut parts: Vec<Part> = Vec::new();
-        let mut elements: HashMap<String, usize> = HashMap::new();
-        for p in raw.parts {
-            if parts.iter().any(|q| q.name == *p.name.get_ref()) {
+    /// One `[[parts]]` entry: a new name, its signals of the right kinds, an
+    /// element of its own, and `drives`/`inputs` among its sensors. `elements`
+    /// gains the part's element.
+    fn part(
+        &self,
+        p: RawPart,
+        parts: &[Part],
+        signals: &SignalTable,
+        elements: &mut HashMap<String, usize>,
+    ) -> Result<Part, PlantError> {
+        let index = parts.len();
+        if parts.iter().any(|q| q.name == *p.name.get_ref()) {
+            return Err(self.at(
+                p.name.span(),
+                "parts.name",
+                format!("part '{}' declared twice", p.name.get_ref()),
+            ));
+        }
+        let actuators = self.signal_list(
+            signals,
+            &p.actuators,
+            SignalKind::Actuator,
+            "parts.actuators",
+        )?;
+        let sensors = self.signal_list(signals, &p.sensors, SignalKind::Sensor, "parts.sensors")?;
+        let element = match p.element {
+            None => None,
+            Some(e) => {
+                check_name(e.get_ref()).map_err(|m| self.at(e.span(), "parts.element", m))?;
+                if signals.id(e.get_ref()).is_some() {
+                    return Err(self.at(
+                        e.span(),
+                        "parts.element",
+                        format!("'{}' is a signal, not an element", e.get_ref()),
+                    ));
+                }
+                if elements.insert(e.get_ref().clone(), index).is_some() {
+                    return Err(self.at(
+                        e.span(),
+                        "parts.element",
+                        format!("element '{}' belongs to two parts", e.get_ref()),
+                    ));
+                }
+                Some(e.into_inner())
+            }
+        };
+        let inputs = match &p.inputs {
+            Some(names) => Some(self.part_sensors(signals, &sensors, names, "parts.inputs")?),
+            None => None,
+        };
+        let declared_input = |s: &SignalId| inputs.as_ref().is_some_and(|i| i.contains(s));
+        let drives = match &p.drives {
+            None => sensors
+                .iter()
+                .copied()
+                .filter(|s| !declared_input(s))
+                .collect(),
+            Some(names) => {
+                if element.is_none()
+                    && let Some(first) = names.first()
+                {
+                    return Err(self.at(
+                        first.span(),
+                        "parts.drives",
+                        "a part without an `element` drives nothing",
+                    ));
+                }
+                let drives = self.part_sensors(signals, &sensors, names, "parts.drives")?;
+                if let Some(n) = names.iter().find(|n| {
+                    signals
+                        .id(n.get_ref())
+                        .is_some_and(|id| declared_input(&id))
+                }) {
+                    return Err(self.at(
+                        n.span(),
+                        "parts.drives",
+                        format!(
+                            "'{}' is an input of the part: the element cannot drive it",
+                            n.get_ref()
+                        ),
+                    ));
+                }
+                drives
+            }
+        };
+        Ok(Part {
+            name: p.name.into_inner(),
+            actuators,
+            sensors,
+            element,
+            drives,
+            inputs,
+        })
+    }
+
+    /// `[faults]`: templates on the plant's signals and elements, each label once.
+    fn faults(
+        &self,
+        entries: Vec<(Spanned<String>, Spanned<String>)>,
+        signals: &SignalTable,
+        parts: &[Part],
+        elements: &HashMap<String, usize>,
+    ) -> Result<Vec<FaultDef>, PlantError> {
+        let mut out: Vec<FaultDef> = Vec::new();
+        for (label, template) in entries {
+            let t: FaultTemplate = template
+                .get_ref()
+                .parse()
+                .map_err(|m: String| self.at(template.span(), "faults", m))?;
+            self.check_template(&t, signals, parts, elements)
+                .map_err(|m| self.at(template.span(), "faults", m))?;
+            if out.iter().any(|f| f.label == *label.get_ref()) {
                 return Err(self.at(
-                    p.name.span(),
-                    "parts.name",
-                    format!("part '{}' declared twice", p.name.get_ref()),
+                    label.span(),
+                    "faults",
+                    format!("fault '{}' declared twice", label.get_ref()),
                 ));
             }
-            let actuators = self.signal_list(
-                &signals,
-                &p.actuators,
-                SignalKind::Actuator,
-                "parts.actuators",
-            )?;
-            let sensors =
-                self.signal_list(&signals, &p.sensors, SignalKind::Sensor, "parts.sensors")?;
-            let element = match p.element {
-                None => None,
-                Some(e) => {
-                    check_name(e.get_ref()).map_err(|m| self.at(e.span(), "parts.element", m))?;
-                    if signals.id(e.get_ref()).is_some() {
-                        return Err(self.at(
-                            e.span(),
-                            "parts.element",
-                            format!("'{}' is a signal, not an element", e.get_ref()),
-                        ));
-                    }
-                    if elements.insert(e.get_ref().clone(), parts.len()).is_some() {
-                        return Err(self.at(
-                            e.span(),
-                            "parts.element",
-                            format!("element '{}' belongs to two parts", e.get_ref()),
-                        ));
-                    }
-                    Some(e.into_inner())
-                }
-            };
-            let inputs = match &p.inputs {
-                Some(names) => {
-                    Some(self.part_sensors(&signals, &sensors, names, "parts.inputs")?)
-                }
-                None => None,
-            };
-            let declared_input = |s: &SignalId| inputs.as_ref().is_some_and(|i| i.contains(s));
-            let drives = match &p.drives {
-                None => sensors
-                    .iter()
-                    .copied()
-                    .filter(|s| !declared_input(s))
-                    .collect(),
-                Some(names) => {
-                    if element.is_none()
-                        && let Some(first) = names.first()
-                    {
-                        return Err(self.at(
-                            first.span(),
-                            "parts.drives",
-                            "a part without an `element` drives nothing",
-                        ));
-                    }
-                    let drives = self.part_sensors(&signals, &sensors, names, "parts.drives")?;
-                    if let Some(n) = names.iter().find(|n| {
-                        signals
-                            .id(n.get_ref())
-                            .is_some_and(|id| declared_input(&id))
-                    }) {
-                        return Err(self.at(
-                            n.span(),
-                            "parts.drives",
-                            format!(
-                                "'{}' is an input of the part: the element cannot drive it",
-                                n.get_ref()
-                            ),
-                        ));
-                    }
-                    drives
-                }
-            };
-            parts.push(Part {
-                name: p.name.into_inner(),
-                actuators,
-                sensors,
-                element,
-                drives,
-                inputs,
+            out.push(FaultDef {
+                label: label.into_inner(),
+                template: t,
             });
         }
 
-        let faults = match raw.faults {
-            Some(entries) => {
-                let mut out: Vec<FaultDef> = Vec::new();
-                for (label, template) in entries {
-                    let t: FaultTemplate = template
-                        .get_ref()
-                        .parse()
-                        .map_err(|m: String| self.at(template.span(), "faults", m))?;
-                    self.check_template(&t, &signals, &parts, &elements)
-                        .map_err(|m| self.at(template.span(), "faults", m))?;
-                    if out.iter().any(|f| f.label == *label.get_ref()) {
-                        return Err(self.at(
-                            label.span(),
-                            "faults",
-                            format!("fault '{}' declared twice", label.get_ref()),
-                        ));
-                    }
-                    out.push(FaultDef {
-                        label: label.into_inner(),
-                        template: t,
-                    });
-                }
-                out
-            }
-            None => default_faults(&parts, &signals),
-        };
+        Ok(out)
+    }
 
-        let partitions = match raw.partitions {
-            Some(entries) => {
-                let mut out: Vec<Partition> = Vec::new();
-                let mut seen: HashSet<String> = HashSet::new();
-                for (name, labels) in entries {
-                    check_name(name.get_ref())
-                        .map_err(|m| self.at(name.span(), "partitions", m))?;
-                    let mut list = Vec::new();
-                    for l in labels {
-                        if !faults.iter().any(|f| f.label == *l.get_ref()) {
-                            return Err(self.at(
-                                l.span(),
-                                "partitions",
-                                format!("unknown fault '{}'", l.get_ref()),
-                            ));
-                        }
-                        if !seen.insert(l.get_ref().clone()) {
-                            return Err(self.at(
-                                l.span(),
-                                "partitions",
-                                format!("fault '{}' is in two partitions", l.get_ref()),
-                            ));
-                        }
-                        list.push(l.into_inner());
-                    }
-                    out.push(Partition {
-                        name: name.into_inner(),
-                        faults: list,
-                    });
+    /// `[partitions]`: known faults, each in one partition at most.
+    fn partitions(
+        &self,
+        entries: Vec<RawPartition>,
+        faults: &[FaultDef],
+    ) -> Result<Vec<Partition>, PlantError> {
+        let mut out: Vec<Partition> = Vec::new();
+        let mut seen: HashSet<String> = HashSet::new();
+        for (name, labels) in entries {
+            check_name(name.get_ref()).map_err(|m| self.at(name.span(), "partitions", m))?;
+            let mut list = Vec::new();
+            for l in labels {
+                if !faults.iter().any(|f| f.label == *l.get_ref()) {
+                    return Err(self.at(
+                        l.span(),
+                        "partitions",
+                        format!("unknown fault '{}'", l.get_ref()),
+                    ));
                 }
-                out
+                if !seen.insert(l.get_ref().clone()) {
+                    return Err(self.at(
+                        l.span(),
+                        "partitions",
+                        format!("fault '{}' is in two partitions", l.get_ref()),
+                    ));
+                }
+                list.push(l.into_inner());
             }
-            None => default_partitions(&faults, &parts, &signals),
-        };
+            out.push(Partition {
+                name: name.into_inner(),
+                faults: list,
+            });
+        }
 
-        // Names an expression may read: signals, observers, variables and flags.
+        Ok(out)
+    }
+
+    /// The names an expression may read: signals, variables, flags and the
+    /// observers (each a new name).
+    fn known_names(
+        &self,
+        observers: &[(Spanned<String>, RawObserver)],
+        signals: &SignalTable,
+        variables: &[String],
+        partitions: &[Partition],
+    ) -> Result<HashSet<String>, PlantError> {
         let mut known: HashSet<String> = signals.iter().map(|(_, s)| s.name.clone()).collect();
         known.extend(variables.iter().cloned());
-        for p in &partitions {
+        for p in partitions {
             known.insert(p.flag());
             known.insert(format!("suspect_{}", p.name));
         }
-        let mut observer_names = Vec::new();
-        for (name, _) in &raw.observers {
+        for (name, _) in observers {
             check_name(name.get_ref()).map_err(|m| self.at(name.span(), "observers", m))?;
             if !known.insert(name.get_ref().clone()) {
                 return Err(self.at(
@@ -685,19 +766,27 @@ impl Checker<'_> {
                     format!("'{}' is already declared", name.get_ref()),
                 ));
             }
-            observer_names.push(name.get_ref().clone());
         }
+        Ok(known)
+    }
 
+    /// `[observers]`: `set` and `reset`, or `toggle`, over known names.
+    fn observers(
+        &self,
+        raw: Vec<(Spanned<String>, RawObserver)>,
+        known: &HashSet<String>,
+        signals: &SignalTable,
+    ) -> Result<Vec<Observer>, PlantError> {
         let mut observers = Vec::new();
-        for (name, o) in raw.observers {
+        for (name, o) in raw {
             let field = format!("observers.{}", name.get_ref());
             let rule = match (o.set, o.reset, o.toggle) {
                 (Some(set), Some(reset), None) => ObserverRule::SetReset {
-                    set: self.expr(&set, &field, &known, &signals)?,
-                    reset: self.expr(&reset, &field, &known, &signals)?,
+                    set: self.expr(&set, &field, known, signals)?,
+                    reset: self.expr(&reset, &field, known, signals)?,
                 },
                 (None, None, Some(toggle)) => {
-                    ObserverRule::Toggle(self.expr(&toggle, &field, &known, &signals)?)
+                    ObserverRule::Toggle(self.expr(&toggle, &field, known, signals)?)
                 }
                 _ => {
                     return Err(self.at(
@@ -713,12 +802,17 @@ impl Checker<'_> {
                 init: o.init,
             });
         }
+        Ok(observers)
+    }
 
-        let constraints = self.constraints(raw.constraints, "constraints", &known, &signals)?;
-        let functional = self.constraints(raw.functional, "functional", &known, &signals)?;
-
+    /// `[can]`: known signals, each mapped once, to a valid identifier and bit.
+    fn can(
+        &self,
+        raw: Vec<(Spanned<String>, Spanned<RawCanBit>)>,
+        signals: &SignalTable,
+    ) -> Result<Vec<CanBit>, PlantError> {
         let mut can = Vec::new();
-        for (name, bit) in raw.can {
+        for (name, bit) in raw {
             let id = signals.id(name.get_ref()).ok_or_else(|| {
                 self.at(
                     name.span(),
@@ -747,24 +841,7 @@ impl Checker<'_> {
                 bit: b.bit,
             });
         }
-
-        let mut plant = Plant {
-            name: raw.name,
-            scan_period,
-            time_unit,
-            signals,
-            variables,
-            parts,
-            faults,
-            partitions,
-            observers,
-            constraints,
-            functional,
-            can,
-            modbus: Vec::new(),
-        };
-        plant.modbus = self.modbus(raw.modbus, &plant)?;
-        Ok(plant)
+        Ok(can)
     }
 
     /// Checks `[modbus]`: known names, one table each (flags in coils), and no

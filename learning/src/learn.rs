@@ -673,66 +673,110 @@ impl PartLearner {
         declared_inputs: Option<Vec<String>>,
     ) -> PartModel {
         let mut untimed = Vec::new();
-        let mut transitions: Vec<TransitionModel> = Vec::new();
         // Whether each transition keeps a regular time on its clock (for an
         // order alone: whether it is a timer of the control).
-        let mut regular = Vec::with_capacity(self.trans.len());
-        for (id, acc) in self.trans.iter().enumerate() {
-            let event = self.event_name(acc.changed, acc.to_vec);
-            let command = acc.changed & self.act_mask() != 0;
-            // A sensor edge with a command in the same scan is the control
-            // reacting to the plant: its timing is the sensor's, and is learned
-            // when the state is left by nothing else (see below).
-            let sensed = acc.changed & !self.act_mask() != 0;
-            // The clock: the command clock, unless an edge of the part that
-            // preceded every occurrence gives a much tighter interval.
-            let command_width = acc.command.width();
-            let best_ref = acc
-                .refs
-                .iter()
-                .enumerate()
-                .filter(|(_, h)| h.n >= options.min_samples && h.n == acc.count)
-                .min_by_key(|(_, h)| h.width());
-            let use_ref = sensed
-                && best_ref.is_some_and(|(_, h)| {
-                    acc.command.n < acc.count
-                        || (h.width() as f64) <= options.tight_ratio * command_width as f64
-                });
-            let (clock, hist) = match best_ref {
-                Some((r, h)) if use_ref => (self.ref_name(r), h),
-                _ => ("command".to_string(), &acc.command),
-            };
-            if hist.n == 0 {
-                untimed.push(format!(
-                    "{event}: never preceded by a command or another edge of the part"
-                ));
-            }
-            let guard = hist.guard(options, widening, scale);
-            let tight = hist.n >= options.min_samples && hist.tight(options);
-            regular.push(tight && hist.light_tails(widening.margin));
-            let timed = sensed && regular[id];
-            if sensed && hist.n > 0 && hist.n < options.min_samples {
-                untimed.push(format!(
-                    "{event}: only {} occurrence(s), too few to time",
-                    hist.n
-                ));
-            } else if sensed && tight && !timed {
-                untimed.push(format!(
-                    "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}), but {:.0}–{:.0} in all: it sometimes waits for the product flow",
-                    guard.q01, guard.q99, guard.min, guard.max
-                ));
-            } else if sensed && hist.n > 0 && !timed {
-                untimed.push(format!(
-                    "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}): it follows the product flow, not a command",
-                    guard.q01, guard.q99
-                ));
-            }
-            let command_guard = if clock != "command" && acc.command.n > 0 {
-                Some(acc.command.guard(options, widening, scale))
-            } else {
-                None
-            };
-            transitions.push(TransitionModel {
+        let (mut transitions, regular): (Vec<TransitionModel>, Vec<bool>) = self
+            .trans
+            .iter()
+            .enumerate()
+            .map(|(id, acc)| self.transition_model(id, acc, options, widening, scale, &mut untimed))
+            .unzip();
+        // Before the rules below untime whole states: whether each transition's
+        // own timing follows a clock of the part.
+        let own_timing: Vec<bool> = transitions.iter().map(|t| t.timed).collect();
+        let (inputs, sensor_classes) = self.sensor_classes(declared_inputs, &own_timing, options);
+        self.untime_outside_edges(
+            &mut transitions,
+            &own_timing,
+            options.min_samples,
+            &mut untimed,
+        );
+        self.untime_reactions_beside_orders(&mut transitions);
+        untime_exits_beside_product_flow(&mut transitions, self.states.len(), &mut untimed);
+        let states = self.state_models(&transitions, &regular);
+        let (estimates, sensor_estimates) = self.estimates(widening.margin, scale, &mut untimed);
+        PartModel {
+            name: self.name.clone(),
+            signals: self.names.clone(),
+            actuators: self.n_act,
+            states,
+            transitions,
+            estimates,
+            sensor_estimates,
+            untimed,
+            inputs,
+            sensor_classes,
+        }
+    }
+
+    /// Transition `id` as learned: its clock, guard and whether it is timed
+    /// on its own, and whether it keeps a regular time on that clock. Why it is
+    /// not timed goes to `untimed`.
+    fn transition_model(
+        &self,
+        id: usize,
+        acc: &TransAcc,
+        options: &LearnOptions,
+        widening: Widening,
+        scale: f64,
+        untimed: &mut Vec<String>,
+    ) -> (TransitionModel, bool) {
+        let event = self.event_name(acc.changed, acc.to_vec);
+        let command = acc.changed & self.act_mask() != 0;
+        // A sensor edge with a command in the same scan is the control
+        // reacting to the plant: its timing is the sensor's, and is learned
+        // when the state is left by nothing else (see below).
+        let sensed = acc.changed & !self.act_mask() != 0;
+        // The clock: the command clock, unless an edge of the part that
+        // preceded every occurrence gives a much tighter interval.
+        let command_width = acc.command.width();
+        let best_ref = acc
+            .refs
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| h.n >= options.min_samples && h.n == acc.count)
+            .min_by_key(|(_, h)| h.width());
+        let use_ref = sensed
+            && best_ref.is_some_and(|(_, h)| {
+                acc.command.n < acc.count
+                    || (h.width() as f64) <= options.tight_ratio * command_width as f64
+            });
+        let (clock, hist) = match best_ref {
+            Some((r, h)) if use_ref => (self.ref_name(r), h),
+            _ => ("command".to_string(), &acc.command),
+        };
+        if hist.n == 0 {
+            untimed.push(format!(
+                "{event}: never preceded by a command or another edge of the part"
+            ));
+        }
+        let guard = hist.guard(options, widening, scale);
+        let tight = hist.n >= options.min_samples && hist.tight(options);
+        let regular = tight && hist.light_tails(widening.margin);
+        let timed = sensed && regular;
+        if sensed && hist.n > 0 && hist.n < options.min_samples {
+            untimed.push(format!(
+                "{event}: only {} occurrence(s), too few to time",
+                hist.n
+            ));
+        } else if sensed && tight && !timed {
+            untimed.push(format!(
+                "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}), but {:.0}–{:.0} in all: it sometimes waits for the product flow",
+                guard.q01, guard.q99, guard.min, guard.max
+            ));
+        } else if sensed && hist.n > 0 && !timed {
+            untimed.push(format!(
+                "{event}: q01–q99 = {:.0}–{:.0} on its best clock ({clock}): it follows the product flow, not a command",
+                guard.q01, guard.q99
+            ));
+        }
+        let command_guard = if clock != "command" && acc.command.n > 0 {
+            Some(acc.command.guard(options, widening, scale))
+        } else {
+            None
+        };
+        (
+            TransitionModel {
                 id,
                 from: acc.from,
                 to: acc.to,
@@ -743,12 +787,20 @@ impl PartLearner {
                 guard,
                 command_guard,
                 timed,
-            });
-        }
-        // Before the rules below untime whole states: whether each transition's
-        // own timing follows a clock of the part.
-        let own_timing: Vec<bool> = transitions.iter().map(|t| t.timed).collect();
-        let (inputs, sensor_classes) = match declared_inputs {
+            },
+            regular,
+        )
+    }
+
+    /// The part's inputs and each sensor's class: as the plant file declares
+    /// them, or else as the edges' timing (`own_timing`) shows.
+    fn sensor_classes(
+        &self,
+        declared_inputs: Option<Vec<String>>,
+        own_timing: &[bool],
+        options: &LearnOptions,
+    ) -> (Vec<String>, Vec<SensorClass>) {
+        match declared_inputs {
             Some(names) => {
                 let classes = self.names[self.n_act..]
                     .iter()
@@ -765,7 +817,7 @@ impl PartLearner {
                 (names, classes)
             }
             None => {
-                let classes = self.classify_sensors(&own_timing, options);
+                let classes = self.classify_sensors(own_timing, options);
                 let inputs = classes
                     .iter()
                     .filter(|c| options.learn_inputs && c.class == SensorKind::Input)
@@ -773,17 +825,13 @@ impl PartLearner {
                     .collect();
                 (inputs, classes)
             }
-        };
+        }
+    }
 
-        self.untime_outside_edges(
-            &mut transitions,
-            &own_timing,
-            options.min_samples,
-            &mut untimed,
-        );
-        // A reaction (sensor edge and command in one scan) out of a state that a
-        // command alone also leaves is the control's choice as much as the
-        // plant's: it is not timed.
+    /// Untimes the reactions (a sensor edge and an order in one scan) out of a
+    /// state that an order alone also leaves: they are the control's choice
+    /// as much as the plant's.
+    fn untime_reactions_beside_orders(&self, transitions: &mut [TransitionModel]) {
         let act_mask = self.act_mask();
         let sensed =
             |t: &TransitionModel| (self.states[t.from].0 ^ self.states[t.to].0) & !act_mask != 0;
@@ -797,30 +845,15 @@ impl PartLearner {
                 }
             }
         }
-        // A state that may be left by an untimed event also stands for "waiting
-        // for the product": the time of its other exits depends on the product
-        // too, so none of them is timed.
-        for id in 0..self.states.len() {
-            let exits: Vec<usize> = transitions
-                .iter()
-                .filter(|t| t.from == id && (!t.command || t.timed))
-                .map(|t| t.id)
-                .collect();
-            if exits.iter().any(|&i| !transitions[i].timed) {
-                for i in exits {
-                    if transitions[i].timed {
-                        transitions[i].timed = false;
-                        untimed.push(format!(
-                            "{}: leaves a state that is also left by untimed events (the product flow)",
-                            transitions[i].event
-                        ));
-                    }
-                }
-            }
-        }
+    }
 
-        let states = self
-            .states
+    /// Each learned state with the events it expects by a deadline, if it has
+    /// one (`regular`: whether each transition keeps a regular time).
+    fn state_models(&self, transitions: &[TransitionModel], regular: &[bool]) -> Vec<StateModel> {
+        let act_mask = self.act_mask();
+        let sensed =
+            |t: &TransitionModel| (self.states[t.from].0 ^ self.states[t.to].0) & !act_mask != 0;
+        self.states
             .iter()
             .enumerate()
             .map(|(id, &(v, visits))| {
@@ -869,21 +902,7 @@ impl PartLearner {
                     expected,
                 }
             })
-            .collect();
-
-        let (estimates, sensor_estimates) = self.estimates(widening.margin, scale, &mut untimed);
-        PartModel {
-            name: self.name.clone(),
-            signals: self.names.clone(),
-            actuators: self.n_act,
-            states,
-            transitions,
-            estimates,
-            sensor_estimates,
-            untimed,
-            inputs,
-            sensor_classes,
-        }
+            .collect()
     }
 
     /// How many times the sensor at `bit` rose (`rising`) or fell, and how
@@ -1151,4 +1170,32 @@ fn schedule(acc: &EstAcc) -> Result<Schedule, String> {
         return Err("its edge windows overlap".into());
     }
     Ok((acc.v0_ones > 0, windows))
+}
+
+/// Untimes every exit of a state that an untimed event may also leave: such a
+/// state also stands for "waiting for the product", and the time of its other
+/// exits depends on the product too.
+fn untime_exits_beside_product_flow(
+    transitions: &mut [TransitionModel],
+    states: usize,
+    untimed: &mut Vec<String>,
+) {
+    for id in 0..states {
+        let exits: Vec<usize> = transitions
+            .iter()
+            .filter(|t| t.from == id && (!t.command || t.timed))
+            .map(|t| t.id)
+            .collect();
+        if exits.iter().any(|&i| !transitions[i].timed) {
+            for i in exits {
+                if transitions[i].timed {
+                    transitions[i].timed = false;
+                    untimed.push(format!(
+                        "{}: leaves a state that is also left by untimed events (the product flow)",
+                        transitions[i].event
+                    ));
+                }
+            }
+        }
+    }
 }

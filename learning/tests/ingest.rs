@@ -144,6 +144,7 @@ fn scans(sink: &MemorySink, end: Time) -> Vec<(Time, Vec<bool>)> {
 }
 
 #[test]
+#[allow(clippy::too_many_lines)] // one scenario, every form in turn
 fn every_form_reads_back_the_same_run() {
     let (plant, sink) = simulated();
     let signals = &plant.signals;

@@ -134,20 +134,8 @@ impl Compiled {
     /// exploration starts from the model's states under every policy.
     pub fn explore_with(engine: &mut Engine, max_bits: u32, commands: Commands<'_>) -> Compiled {
         let part = engine.part.clone();
-        let nbits = part.names.len() as u32;
         let clocks = part.clocks.len();
-        // Observed scans of at most `max_bits` edges, and every learned
-        // transition's scan, however many edges it has: the control often
-        // reacts to a sensor in the scan that shows it, and a diagnoser that
-        // never took such a scan would never reach the states after it.
-        let mut masks: Vec<u32> = (1u32..(1 << nbits))
-            .filter(|m| m.count_ones() <= max_bits)
-            .collect();
-        for s in 0..part.state_vectors().len() {
-            masks.extend(part.moves(s).iter().map(|m| m.changed));
-        }
-        masks.sort_unstable_by_key(|m| (m.count_ones(), *m));
-        masks.dedup();
+        let masks = scan_masks(&part, max_bits);
         let mut graph: DiGraph<Node, Trigger> = DiGraph::new();
         let mut index: HashMap<Node, NodeIndex> = HashMap::new();
         let mut queue: VecDeque<NodeIndex> = VecDeque::new();
@@ -194,19 +182,7 @@ impl Compiled {
             let node = graph[i].clone();
             // Time passing to the next threshold of any clock.
             let st = engine.state(node.state).clone();
-            let mut step: Option<(Time, u8)> = None;
-            for (c, th) in st.thresholds.iter().enumerate() {
-                if let Some(Some(v)) = node.readings.get(c) {
-                    let k = th.partition_point(|&x| x <= *v);
-                    if let Some(&x) = th.get(k) {
-                        let d = x - v;
-                        if step.is_none_or(|(best, _)| d < best) {
-                            step = Some((d, c as u8));
-                        }
-                    }
-                }
-            }
-            if let Some((d, c)) = step {
+            if let Some((d, c)) = next_threshold(&st.thresholds, &node.readings) {
                 let readings: Vec<Option<Time>> = node
                     .readings
                     .iter()
@@ -422,4 +398,39 @@ type Span = (Time, Option<Time>);
 
 fn escape(s: &str) -> String {
     s.replace('\\', "\\\\").replace('"', "\\\"")
+}
+
+/// The observed scans to explore: every one of at most `max_bits` edges, and
+/// every learned transition's scan, however many edges it has. The control
+/// often reacts to a sensor in the scan that shows it, and a diagnoser that
+/// never took such a scan would never reach the states after it.
+fn scan_masks(part: &PartDiagnoser, max_bits: u32) -> Vec<u32> {
+    let nbits = part.names.len() as u32;
+    let mut masks: Vec<u32> = (1u32..(1 << nbits))
+        .filter(|m| m.count_ones() <= max_bits)
+        .collect();
+    for s in 0..part.state_vectors().len() {
+        masks.extend(part.moves(s).iter().map(|m| m.changed));
+    }
+    masks.sort_unstable_by_key(|m| (m.count_ones(), *m));
+    masks.dedup();
+    masks
+}
+
+/// How long until the nearest next threshold of a clock that reads a value,
+/// and that clock.
+fn next_threshold(thresholds: &[Box<[Time]>], readings: &[Option<Time>]) -> Option<(Time, u8)> {
+    let mut step: Option<(Time, u8)> = None;
+    for (c, th) in thresholds.iter().enumerate() {
+        if let Some(Some(v)) = readings.get(c) {
+            let k = th.partition_point(|&x| x <= *v);
+            if let Some(&x) = th.get(k) {
+                let d = x - v;
+                if step.is_none_or(|(best, _)| d < best) {
+                    step = Some((d, c as u8));
+                }
+            }
+        }
+    }
+    step
 }

@@ -280,123 +280,33 @@ impl PartDiagnoser {
         scale: f64,
         glitch_max: Time,
     ) -> Result<PartDiagnoser, BuildError> {
-        let signals: Vec<SignalId> = part
-            .actuators
-            .iter()
-            .chain(&part.sensors)
-            .copied()
-            .collect();
-        let names: Vec<String> = signals
-            .iter()
-            .map(|&s| plant.signals.name(s).to_string())
-            .collect();
-        if names != model.signals || model.actuators != part.actuators.len() {
-            return Err(format!(
-                "part '{}': the model's signals [{}] are not the plant's [{}] (learned from another plant file?)",
-                part.name,
-                model.signals.join(", "),
-                names.join(", ")
-            ));
-        }
-        if names.len() > MAX_PART_SIGNALS {
-            return Err(format!(
-                "part '{}' has {} signals; a diagnoser handles at most {MAX_PART_SIGNALS}",
-                part.name,
-                names.len()
-            ));
-        }
+        let (signals, names) = part_signals(plant, part, model)?;
         let bit_of = |name: &str| names.iter().position(|n| n == name).map(|b| b as u8);
         let act_mask = (1u32 << part.actuators.len()) - 1;
-
-        let mut clocks = vec![Clock::Command];
-        let mut clock_index = |name: &str| -> Result<u8, BuildError> {
-            let clock = if name == "command" {
-                Clock::Command
-            } else {
-                let parsed = name
-                    .strip_suffix(')')
-                    .and_then(|s| s.split_once('('))
-                    .and_then(|(edge, sig)| {
-                        let rising = match edge {
-                            "RE" => true,
-                            "FE" => false,
-                            _ => return None,
-                        };
-                        bit_of(sig).map(|bit| Clock::Edge { bit, rising })
-                    });
-                parsed.ok_or_else(|| {
-                    format!("part '{}': unknown clock '{name}' in the model", part.name)
-                })?
-            };
-            Ok(match clocks.iter().position(|&c| c == clock) {
-                Some(i) => i as u8,
-                None => {
-                    clocks.push(clock);
-                    (clocks.len() - 1) as u8
-                }
-            })
-        };
-
+        let mut clocks = ClockTable::new(&part.name);
         let inputs = input_mask(plant, part, model, &bit_of);
         // The model's states as learned (`learned`), and the motion states the
         // diagnoser runs on: the learned ones with the inputs' bits cleared, so
         // that an input's edge may come in any of them.
-        let mut learned = Vec::with_capacity(model.states.len());
-        for (i, s) in model.states.iter().enumerate() {
-            if s.values.len() != names.len() {
-                return Err(format!(
-                    "part '{}': state {i} has {} values for {} signals",
-                    part.name,
-                    s.values.len(),
-                    names.len()
-                ));
-            }
-            let v = s
-                .values
-                .iter()
-                .enumerate()
-                .fold(0u32, |v, (b, &x)| v | (u32::from(x) << b));
-            learned.push(v);
-        }
-        let mut states = HashMap::new();
-        let mut vectors = Vec::new();
-        let motion_state: Vec<usize> = learned
-            .iter()
-            .map(|&v| {
-                *states.entry(v & !inputs).or_insert_with(|| {
-                    vectors.push(v & !inputs);
-                    vectors.len() - 1
-                })
-            })
-            .collect();
-        let to_ns = |x: f64| (x * scale).round() as Time;
-        let mut moves: Vec<Vec<Move>> = vec![Vec::new(); vectors.len()];
-        let mut events = Vec::with_capacity(model.transitions.len());
-        let mut windows = Vec::with_capacity(model.transitions.len());
-        for t in &model.transitions {
-            let (Some(&from), Some(&to)) = (learned.get(t.from), learned.get(t.to)) else {
-                return Err(format!(
-                    "part '{}': transition {} joins unknown states",
-                    part.name, t.id
-                ));
-            };
-            events.push(t.event.clone());
-            windows.push((clock_index(&t.clock)?, to_ns(t.guard.hi), t.timed));
-            let changed = (from ^ to) & !inputs;
-            if changed == 0 {
-                continue; // an input's edge alone: allowed anywhere
-            }
-            moves[motion_state[t.from]].push(Move {
-                id: t.id,
-                changed,
-                command: changed & act_mask != 0,
-                clock: clock_index(&t.clock)?,
-                lo: to_ns(t.guard.lo),
-                hi: to_ns(t.guard.hi),
-                timed: t.timed,
-                lent: false,
-            });
-        }
+        let learned = learned_vectors(part, model, names.len())?;
+        let (states, vectors, motion_state) = motion_states(&learned, inputs);
+        let learned_moves = LearnedMoves::build(
+            part,
+            model,
+            &learned,
+            &motion_state,
+            vectors.len(),
+            &mut clocks,
+            &bit_of,
+            scale,
+            inputs,
+            act_mask,
+        )?;
+        let (events, windows, mut moves) = (
+            learned_moves.events,
+            learned_moves.windows,
+            learned_moves.moves,
+        );
         let expected = expectations(model, &motion_state, &moves);
         let drives = part
             .drives
@@ -414,64 +324,11 @@ impl PartDiagnoser {
         let loose = loose_mask(model, &bit_of) & !inputs;
         borrow_moves(&vectors, &mut moves, loose);
         lend_outside_edges(&vectors, &states, &mut moves, loose | undriven);
-        let mut reactions: Vec<u32> = moves
-            .iter()
-            .flatten()
-            .map(|m| m.changed)
-            .filter(|&c| c & act_mask != 0 && c & !act_mask != 0)
-            .collect();
-        reactions.sort_unstable();
-        reactions.dedup();
+        let reactions = reactions(&moves, act_mask);
         let free_edges = free_edges(&vectors, &moves, act_mask, free);
-
-        let mut modes = vec![Mode {
-            label: "N".to_string(),
-            template: None,
-            kind: ModeKind::Normal,
-            partition: None,
-        }];
-        let mut partitions: Vec<String> = Vec::new();
-        for f in &plant.faults {
-            let Some(kind) = mode_kind(&f.template, part, drives, &bit_of) else {
-                continue;
-            };
-            if let ModeKind::Glitch { bit, value } = kind {
-                // The glitch's own clock: time since its observed edge.
-                let edge = format!(
-                    "{}({})",
-                    if value { "RE" } else { "FE" },
-                    names[bit as usize]
-                );
-                clock_index(&edge)?;
-            }
-            let partition = plant.partition_of(&f.label).map(|p| {
-                match partitions.iter().position(|n| *n == p.name) {
-                    Some(i) => i,
-                    None => {
-                        partitions.push(p.name.clone());
-                        partitions.len() - 1
-                    }
-                }
-            });
-            modes.push(Mode {
-                label: f.label.clone(),
-                template: Some(f.template.clone()),
-                kind,
-                partition,
-            });
-        }
-        if partitions.len() > 32 {
-            return Err(format!(
-                "part '{}' has {} fault partitions; at most 32 are supported",
-                part.name,
-                partitions.len()
-            ));
-        }
-        let mut latest_lo = vec![0; clocks.len()];
-        for m in moves.iter().flatten().filter(|m| m.timed) {
-            let l = &mut latest_lo[m.clock as usize];
-            *l = (*l).max(m.lo);
-        }
+        let (modes, partitions) = fault_modes(plant, part, drives, &names, &bit_of, &mut clocks)?;
+        let clocks = clocks.clocks;
+        let latest_lo = latest_lower_bounds(&moves, clocks.len());
         Ok(PartDiagnoser {
             kin: kin_states(&vectors, undriven),
             reversals: true,
@@ -1167,64 +1024,7 @@ impl PartDiagnoser {
         }
         let frozen = self.frozen_bits(h);
         if rest & frozen == 0 {
-            match self.model_state(h.phys) {
-                Some(s) => {
-                    for m in self.moves_from(h, s) {
-                        let sensed = m.changed & !self.act_mask;
-                        if sensed.count_ones() >= 2 {
-                            self.hidden_amid(h, m, rest, moved, after, readings, out);
-                        }
-                        // The control's reaction to a sensor edge it cannot see
-                        // does not come; the edges themselves still happen, the
-                        // hidden ones with the visible ones (as in `close`). Nor
-                        // does a reaction the control already shows, on an
-                        // actuator stuck where the reaction would put it, nor
-                        // one to an element the control did not send where it
-                        // is. The reaction to edges from outside the part may
-                        // wait for conditions outside it too (a workpiece
-                        // arrives before the next machine is ready).
-                        let physical = if !m.command {
-                            m.changed
-                        } else if sensed & dec != 0
-                            || sensed & !self.loose == 0
-                            || self.reaction_shown(h, m, after)
-                            || self.held_astray(h, after)
-                        {
-                            sensed
-                        } else {
-                            continue;
-                        };
-                        if let Some(visible) = self.shown_part(h, physical, rest)
-                            && self.admits(h, m, readings)
-                            && !self.too_soon(h, m, moved)
-                        {
-                            let phys = h.phys ^ physical;
-                            let flags = if m.lent && physical & !self.undriven & !self.act_mask == 0
-                            {
-                                // An edge from outside the part, which the model
-                                // learned in another state: the state it leads
-                                // to was learned with the element elsewhere (a
-                                // workpiece arriving after the pusher went by).
-                                h.flags | self.unseen_in(phys, false)
-                            } else {
-                                // The edge dates the element again.
-                                h.flags & !Hypothesis::UNDATED
-                            };
-                            let next = Hypothesis { phys, flags, ..h };
-                            let moved = moved | physical;
-                            self.explain(next, rest & !visible, moved, after, readings, out);
-                        }
-                    }
-                }
-                // A state the model never saw (reached by an unusual command):
-                // the model cannot judge its sensors.
-                None if rest & dec == 0 => out.push(Hypothesis {
-                    phys: h.phys ^ rest,
-                    flags: h.flags | self.unseen_in(h.phys ^ rest, false),
-                    ..h
-                }),
-                None => {}
-            }
+            self.explain_by_moves(h, rest, moved, after, readings, out);
             if h.has(Hypothesis::STARTED) {
                 self.started_motion(h, rest, moved, after, readings, out);
             }
@@ -1244,6 +1044,91 @@ impl PartDiagnoser {
             }
         }
         // The fault's own observable effects, one edge at a time.
+        self.explain_by_fault(h, rest, moved, after, readings, out);
+    }
+
+    /// Explains the edges `rest` by the learned moves of `h`'s state, or, in a
+    /// state the model never saw, as whatever the unusual command made.
+    fn explain_by_moves(
+        &self,
+        h: Hypothesis,
+        rest: u32,
+        moved: u32,
+        after: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        let dec = self.decoupled(h);
+        match self.model_state(h.phys) {
+            Some(s) => {
+                for m in self.moves_from(h, s) {
+                    let sensed = m.changed & !self.act_mask;
+                    if sensed.count_ones() >= 2 {
+                        self.hidden_amid(h, m, rest, moved, after, readings, out);
+                    }
+                    // The control's reaction to a sensor edge it cannot see
+                    // does not come; the edges themselves still happen, the
+                    // hidden ones with the visible ones (as in `close`). Nor
+                    // does a reaction the control already shows, on an
+                    // actuator stuck where the reaction would put it, nor
+                    // one to an element the control did not send where it
+                    // is. The reaction to edges from outside the part may
+                    // wait for conditions outside it too (a workpiece
+                    // arrives before the next machine is ready).
+                    let physical = if !m.command {
+                        m.changed
+                    } else if sensed & dec != 0
+                        || sensed & !self.loose == 0
+                        || self.reaction_shown(h, m, after)
+                        || self.held_astray(h, after)
+                    {
+                        sensed
+                    } else {
+                        continue;
+                    };
+                    if let Some(visible) = self.shown_part(h, physical, rest)
+                        && self.admits(h, m, readings)
+                        && !self.too_soon(h, m, moved)
+                    {
+                        let phys = h.phys ^ physical;
+                        let flags = if m.lent && physical & !self.undriven & !self.act_mask == 0 {
+                            // An edge from outside the part, which the model
+                            // learned in another state: the state it leads
+                            // to was learned with the element elsewhere (a
+                            // workpiece arriving after the pusher went by).
+                            h.flags | self.unseen_in(phys, false)
+                        } else {
+                            // The edge dates the element again.
+                            h.flags & !Hypothesis::UNDATED
+                        };
+                        let next = Hypothesis { phys, flags, ..h };
+                        let moved = moved | physical;
+                        self.explain(next, rest & !visible, moved, after, readings, out);
+                    }
+                }
+            }
+            // A state the model never saw (reached by an unusual command):
+            // the model cannot judge its sensors.
+            None if rest & dec == 0 => out.push(Hypothesis {
+                phys: h.phys ^ rest,
+                flags: h.flags | self.unseen_in(h.phys ^ rest, false),
+                ..h
+            }),
+            None => {}
+        }
+    }
+
+    /// Explains the edges `rest` one at a time by the fault's own effects: a
+    /// stuck sensor's onset, or a glitch that starts or ends.
+    fn explain_by_fault(
+        &self,
+        h: Hypothesis,
+        rest: u32,
+        moved: u32,
+        after: u32,
+        readings: &Readings,
+        out: &mut Vec<Hypothesis>,
+    ) {
         for bit in 0..self.names.len() as u8 {
             if rest >> bit & 1 == 0 {
                 continue;
@@ -1636,6 +1521,269 @@ impl PartDiagnoser {
         }
         (all, timers)
     }
+}
+
+/// The part's signals (actuators, then sensors) and their names, checked
+/// against the model's.
+fn part_signals(
+    plant: &Plant,
+    part: &Part,
+    model: &PartModel,
+) -> Result<(Vec<SignalId>, Vec<String>), BuildError> {
+    let signals: Vec<SignalId> = part
+        .actuators
+        .iter()
+        .chain(&part.sensors)
+        .copied()
+        .collect();
+    let names: Vec<String> = signals
+        .iter()
+        .map(|&s| plant.signals.name(s).to_string())
+        .collect();
+    if names != model.signals || model.actuators != part.actuators.len() {
+        return Err(format!(
+            "part '{}': the model's signals [{}] are not the plant's [{}] (learned from another plant file?)",
+            part.name,
+            model.signals.join(", "),
+            names.join(", ")
+        ));
+    }
+    if names.len() > MAX_PART_SIGNALS {
+        return Err(format!(
+            "part '{}' has {} signals; a diagnoser handles at most {MAX_PART_SIGNALS}",
+            part.name,
+            names.len()
+        ));
+    }
+    Ok((signals, names))
+}
+
+/// The part's clocks, numbered in the order they are first named: the command
+/// clock first, then the model's clocks, then the glitches' own.
+struct ClockTable<'a> {
+    part: &'a str,
+    clocks: Vec<Clock>,
+}
+
+impl<'a> ClockTable<'a> {
+    fn new(part: &'a str) -> Self {
+        ClockTable {
+            part,
+            clocks: vec![Clock::Command],
+        }
+    }
+
+    /// The number of the clock `name` (`command`, `RE(x)` or `FE(x)`).
+    fn index(
+        &mut self,
+        name: &str,
+        bit_of: &impl Fn(&str) -> Option<u8>,
+    ) -> Result<u8, BuildError> {
+        let clock = if name == "command" {
+            Clock::Command
+        } else {
+            let parsed = name
+                .strip_suffix(')')
+                .and_then(|s| s.split_once('('))
+                .and_then(|(edge, sig)| {
+                    let rising = match edge {
+                        "RE" => true,
+                        "FE" => false,
+                        _ => return None,
+                    };
+                    bit_of(sig).map(|bit| Clock::Edge { bit, rising })
+                });
+            parsed.ok_or_else(|| {
+                format!("part '{}': unknown clock '{name}' in the model", self.part)
+            })?
+        };
+        Ok(match self.clocks.iter().position(|&c| c == clock) {
+            Some(i) => i as u8,
+            None => {
+                self.clocks.push(clock);
+                (self.clocks.len() - 1) as u8
+            }
+        })
+    }
+}
+
+/// Each learned state's values as a bit vector (bit `b`: signal `b`).
+fn learned_vectors(part: &Part, model: &PartModel, signals: usize) -> Result<Vec<u32>, BuildError> {
+    model
+        .states
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            if s.values.len() != signals {
+                return Err(format!(
+                    "part '{}': state {i} has {} values for {signals} signals",
+                    part.name,
+                    s.values.len(),
+                ));
+            }
+            Ok(s.values
+                .iter()
+                .enumerate()
+                .fold(0u32, |v, (b, &x)| v | (u32::from(x) << b)))
+        })
+        .collect()
+}
+
+/// The motion states: the learned vectors with the inputs' bits cleared, each
+/// numbered once (`states`: vector to number, `vectors`: number to vector), and
+/// the motion state of each learned state.
+fn motion_states(learned: &[u32], inputs: u32) -> (HashMap<u32, usize>, Vec<u32>, Vec<usize>) {
+    let mut states = HashMap::new();
+    let mut vectors = Vec::new();
+    let motion_state: Vec<usize> = learned
+        .iter()
+        .map(|&v| {
+            *states.entry(v & !inputs).or_insert_with(|| {
+                vectors.push(v & !inputs);
+                vectors.len() - 1
+            })
+        })
+        .collect();
+    (states, vectors, motion_state)
+}
+
+/// The model's transitions in the diagnoser's form: per transition its event
+/// and window, and per motion state the moves out of it.
+struct LearnedMoves {
+    events: Vec<String>,
+    windows: Vec<(u8, Time, bool)>,
+    moves: Vec<Vec<Move>>,
+}
+
+impl LearnedMoves {
+    #[allow(clippy::too_many_arguments)]
+    fn build(
+        part: &Part,
+        model: &PartModel,
+        learned: &[u32],
+        motion_state: &[usize],
+        motion_states: usize,
+        clocks: &mut ClockTable<'_>,
+        bit_of: &impl Fn(&str) -> Option<u8>,
+        scale: f64,
+        inputs: u32,
+        act_mask: u32,
+    ) -> Result<LearnedMoves, BuildError> {
+        let to_ns = |x: f64| (x * scale).round() as Time;
+        let mut moves: Vec<Vec<Move>> = vec![Vec::new(); motion_states];
+        let mut events = Vec::with_capacity(model.transitions.len());
+        let mut windows = Vec::with_capacity(model.transitions.len());
+        for t in &model.transitions {
+            let (Some(&from), Some(&to)) = (learned.get(t.from), learned.get(t.to)) else {
+                return Err(format!(
+                    "part '{}': transition {} joins unknown states",
+                    part.name, t.id
+                ));
+            };
+            events.push(t.event.clone());
+            let clock = clocks.index(&t.clock, bit_of)?;
+            windows.push((clock, to_ns(t.guard.hi), t.timed));
+            let changed = (from ^ to) & !inputs;
+            if changed == 0 {
+                continue; // an input's edge alone: allowed anywhere
+            }
+            moves[motion_state[t.from]].push(Move {
+                id: t.id,
+                changed,
+                command: changed & act_mask != 0,
+                clock,
+                lo: to_ns(t.guard.lo),
+                hi: to_ns(t.guard.hi),
+                timed: t.timed,
+                lent: false,
+            });
+        }
+        Ok(LearnedMoves {
+            events,
+            windows,
+            moves,
+        })
+    }
+}
+
+/// The changes of the moves that are the control's reactions: orders given in
+/// the same scan as sensor edges.
+fn reactions(moves: &[Vec<Move>], act_mask: u32) -> Vec<u32> {
+    let mut reactions: Vec<u32> = moves
+        .iter()
+        .flatten()
+        .map(|m| m.changed)
+        .filter(|&c| c & act_mask != 0 && c & !act_mask != 0)
+        .collect();
+    reactions.sort_unstable();
+    reactions.dedup();
+    reactions
+}
+
+/// The normal mode, then one mode per fault of the plant that concerns the
+/// part, with the partitions they belong to (numbered in order of first use).
+fn fault_modes(
+    plant: &Plant,
+    part: &Part,
+    drives: u32,
+    names: &[String],
+    bit_of: &impl Fn(&str) -> Option<u8>,
+    clocks: &mut ClockTable<'_>,
+) -> Result<(Vec<Mode>, Vec<String>), BuildError> {
+    let mut modes = vec![Mode {
+        label: "N".to_string(),
+        template: None,
+        kind: ModeKind::Normal,
+        partition: None,
+    }];
+    let mut partitions: Vec<String> = Vec::new();
+    for f in &plant.faults {
+        let Some(kind) = mode_kind(&f.template, part, drives, bit_of) else {
+            continue;
+        };
+        if let ModeKind::Glitch { bit, value } = kind {
+            // The glitch's own clock: time since its observed edge.
+            let edge = format!(
+                "{}({})",
+                if value { "RE" } else { "FE" },
+                names[bit as usize]
+            );
+            clocks.index(&edge, bit_of)?;
+        }
+        let partition = plant.partition_of(&f.label).map(|p| {
+            match partitions.iter().position(|n| *n == p.name) {
+                Some(i) => i,
+                None => {
+                    partitions.push(p.name.clone());
+                    partitions.len() - 1
+                }
+            }
+        });
+        modes.push(Mode {
+            label: f.label.clone(),
+            template: Some(f.template.clone()),
+            kind,
+            partition,
+        });
+    }
+    if partitions.len() > 32 {
+        return Err(format!(
+            "part '{}' has {} fault partitions; at most 32 are supported",
+            part.name,
+            partitions.len()
+        ));
+    }
+    Ok((modes, partitions))
+}
+
+/// Per clock, the latest lower bound of a timed move guarded by it.
+fn latest_lower_bounds(moves: &[Vec<Move>], clocks: usize) -> Vec<Time> {
+    let mut latest_lo = vec![0; clocks];
+    for m in moves.iter().flatten().filter(|m| m.timed) {
+        let l = &mut latest_lo[m.clock as usize];
+        *l = (*l).max(m.lo);
+    }
+    latest_lo
 }
 
 /// Bits of the part's input sensors: the plant file's `inputs` when it gives
