@@ -33,6 +33,9 @@ use std::collections::hash_map::Entry;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
 
+use petgraph::algo::tarjan_scc;
+use petgraph::graph::{DiGraph, NodeIndex};
+
 use crate::error::{Located, Location, line_column};
 
 /// An untimed automaton read from a libFAUDES `.gen` file.
@@ -1463,65 +1466,24 @@ fn observation_moves(
 
 /// Strongly connected components of the graph restricted to `keep` nodes, for the
 /// components that hold a cycle: `component[p]` is the component's id, `None` for
-/// nodes on no cycle (Tarjan's algorithm, iterative).
+/// nodes on no cycle.
 fn cyclic_components(graph: &[Vec<(usize, usize, usize)>], keep: &[bool]) -> Vec<Option<usize>> {
-    let n = graph.len();
-    let mut index = vec![usize::MAX; n];
-    let mut low = vec![0; n];
-    let mut on_stack = vec![false; n];
-    let mut stack = Vec::new();
-    let mut component = vec![None; n];
-    let mut count = 0;
-    let mut next_index = 0;
-    for root in 0..n {
-        if !keep[root] || index[root] != usize::MAX {
-            continue;
+    let mut kept: DiGraph<(), ()> = DiGraph::with_capacity(graph.len(), 0);
+    for _ in graph {
+        kept.add_node(());
+    }
+    for (v, out) in graph.iter().enumerate().filter(|&(v, _)| keep[v]) {
+        for &(w, _, _) in out.iter().filter(|&&(w, _, _)| keep[w]) {
+            kept.add_edge(NodeIndex::new(v), NodeIndex::new(w), ());
         }
-        let mut work: Vec<(usize, usize)> = vec![(root, 0)];
-        index[root] = next_index;
-        low[root] = next_index;
-        next_index += 1;
-        stack.push(root);
-        on_stack[root] = true;
-        while let Some(&mut (v, ref mut k)) = work.last_mut() {
-            if let Some(&(w, _, _)) = graph[v].get(*k) {
-                *k += 1;
-                if !keep[w] {
-                    continue;
-                }
-                if index[w] == usize::MAX {
-                    index[w] = next_index;
-                    low[w] = next_index;
-                    next_index += 1;
-                    stack.push(w);
-                    on_stack[w] = true;
-                    work.push((w, 0));
-                } else if on_stack[w] {
-                    low[v] = low[v].min(index[w]);
-                }
-                continue;
-            }
-            work.pop();
-            if let Some(&(parent, _)) = work.last() {
-                low[parent] = low[parent].min(low[v]);
-            }
-            if low[v] == index[v] {
-                let mut members = Vec::new();
-                while let Some(w) = stack.pop() {
-                    on_stack[w] = false;
-                    members.push(w);
-                    if w == v {
-                        break;
-                    }
-                }
-                let cyclic = members.len() > 1 || graph[v].iter().any(|&(w, _, _)| w == v);
-                if cyclic {
-                    for w in members {
-                        component[w] = Some(count);
-                    }
-                    count += 1;
-                }
-            }
+    }
+    let mut component = vec![None; graph.len()];
+    let cyclic = tarjan_scc(&kept)
+        .into_iter()
+        .filter(|members| members.len() > 1 || kept.contains_edge(members[0], members[0]));
+    for (id, members) in cyclic.enumerate() {
+        for node in members {
+            component[node.index()] = Some(id);
         }
     }
     component

@@ -300,7 +300,7 @@ impl Compiled {
             let names: Vec<&str> = if labels.normal {
                 vec!["N"]
             } else if labels.modes.is_empty() {
-                vec![super::run::UNKNOWN_LABEL]
+                vec![super::verdict::UNKNOWN_LABEL]
             } else {
                 labels
                     .modes

@@ -23,7 +23,7 @@
 //! Flags of the plant view follow SPEC §3 on its candidates: `def_<partition>`
 //! when they all lie in one partition (and, like every flag, never lowered).
 
-use super::run::{UNKNOWN_LABEL, Verdict, VerdictKind};
+use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
 use crate::{Plant, Time};
 
 /// The part name of plant-view verdict lines.

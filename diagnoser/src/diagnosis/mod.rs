@@ -8,6 +8,7 @@
 //!   built on the fly and memoised, so a replay is a table lookup per scan.
 //! - [`run`]: every part's diagnoser fed with a plant's events, giving the
 //!   verdict changes of SPEC §3.
+//! - [`verdict`]: a part's verdict and its JSON line.
 //! - [`fusion`]: the coordinator, combining the parts' verdicts into a plant view.
 //!
 //! Labels, verdicts and flags follow SPEC §3: the verdict is normal while the
@@ -22,7 +23,9 @@ mod explain;
 pub mod fusion;
 pub mod part;
 pub mod run;
+pub mod verdict;
 
 pub use engine::{Engine, Labels};
 pub use part::{Hypothesis, ModeKind, PartDiagnoser};
-pub use run::{DiagnoserOptions, PartSummary, PlantDiagnoser, UNKNOWN_LABEL, Verdict, VerdictKind};
+pub use run::{DiagnoserOptions, PartSummary, PlantDiagnoser};
+pub use verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
