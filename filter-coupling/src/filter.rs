@@ -35,7 +35,7 @@ use std::fmt;
 
 use diagnoser::expr::Expr;
 use diagnoser::model::Model;
-use diagnoser::plant::ObserverRule;
+use diagnoser::plant::{Constraint, ObserverRule, Part};
 use diagnoser::{FaultTemplate, Plant, SignalKind, Time};
 
 use crate::rewrite::{Estimate, RewriteOptions, rewrite};
@@ -355,197 +355,272 @@ fn rewrite_certain(e: &Expr, estimates: &[Estimate], options: RewriteOptions) ->
     }
 }
 
+/// The filter's variables as they are declared: each name's slot in the
+/// scan's value vectors.
+#[derive(Debug, Default)]
+struct SlotTable {
+    names: Vec<String>,
+    index: HashMap<String, usize>,
+}
+
+impl SlotTable {
+    /// The slot of `name`, a new one after the others if it has none yet.
+    fn slot(&mut self, name: &str) -> usize {
+        if let Some(&i) = self.index.get(name) {
+            return i;
+        }
+        self.names.push(name.to_string());
+        self.index.insert(name.to_string(), self.names.len() - 1);
+        self.names.len() - 1
+    }
+}
+
+/// The clocks of the parts with estimates, their intervals given slots (after
+/// every other variable, in the model's order).
+fn part_clocks(
+    plant: &Plant,
+    clock_defs: Vec<PartSchedules>,
+    slots: &mut SlotTable,
+) -> Result<Vec<PartClock>, String> {
+    let mut clocks = Vec::new();
+    for (part_name, groups) in clock_defs {
+        let part = plant
+            .parts
+            .iter()
+            .find(|p| p.name == part_name)
+            .ok_or_else(|| format!("no part {part_name}"))?;
+        let groups = groups
+            .into_iter()
+            .map(|(values, intervals)| {
+                let iv = intervals
+                    .into_iter()
+                    .map(|(n, from, to)| (slots.slot(&n), from, to))
+                    .collect();
+                (values, iv)
+            })
+            .collect();
+        clocks.push(PartClock {
+            actuators: part.actuators.iter().map(|a| a.index()).collect(),
+            since: None,
+            groups,
+        });
+    }
+    Ok(clocks)
+}
+
+/// `constraints` as the filter evaluates them: each expression as `read`
+/// gives it (rewritten with the estimates when coupled), compiled, with the
+/// outputs the original reads.
+fn compile_constraints(
+    constraints: &[Constraint],
+    index: &HashMap<String, usize>,
+    actuators: &[usize],
+    read: impl Fn(&Expr) -> Expr,
+) -> Result<Vec<Compiled>, String> {
+    let mut compiled = Vec::new();
+    for c in constraints {
+        let expr = read(&c.expr);
+        let op = compile(&expr, index)?;
+        compiled.push(Compiled {
+            name: c.name.clone(),
+            outputs: outputs_of(&c.expr, index, actuators),
+            expr,
+            op,
+        });
+    }
+    Ok(compiled)
+}
+
+/// The constraints each output's safe law reads, and the combined ones. A
+/// safety constraint without priority that reads one output feeds its law;
+/// one with a priority output must read exactly one other, which it sends to 0;
+/// the others are only checked. Every functional constraint feeds the laws of
+/// the outputs it reads.
+fn laws_and_combined(
+    plant: &Plant,
+    safety: &[Compiled],
+    functional: &[Compiled],
+    actuators: &[usize],
+) -> Result<(Vec<LawSlots>, Vec<Combined>), String> {
+    let mut laws: Vec<LawSlots> = actuators
+        .iter()
+        .map(|&slot| LawSlots {
+            slot,
+            ..LawSlots::default()
+        })
+        .collect();
+    let mut combined = Vec::new();
+    for (i, (c, compiled)) in plant.constraints.iter().zip(safety).enumerate() {
+        match (&c.priority, compiled.outputs.as_slice()) {
+            (None, [k]) => {
+                if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
+                    law.safety.push(i);
+                }
+            }
+            (Some(p), outs) => {
+                let p = p.index();
+                let others: Vec<usize> = outs.iter().copied().filter(|&o| o != p).collect();
+                match others.as_slice() {
+                    [other] => combined.push(Combined {
+                        constraint: i,
+                        other: *other,
+                    }),
+                    _ => {
+                        return Err(format!(
+                            "constraint {}: a combined constraint reads its priority output and exactly one other",
+                            c.name
+                        ));
+                    }
+                }
+            }
+            // Read by no output, or by several with no priority: only checked.
+            _ => {}
+        }
+    }
+    for (i, c) in functional.iter().enumerate() {
+        for k in &c.outputs {
+            if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
+                law.functional.push(i);
+                law.asks_for_one |= reads_negated(&c.op, *k);
+            }
+        }
+    }
+    Ok((laws, combined))
+}
+
+/// The plant's observers, compiled: each one's slot and rule.
+fn compile_observers(
+    plant: &Plant,
+    index: &HashMap<String, usize>,
+) -> Result<Vec<(usize, ObserverOp)>, String> {
+    let mut observers = Vec::new();
+    for o in &plant.observers {
+        let s = index[&o.name];
+        let op = match &o.rule {
+            ObserverRule::SetReset { set, reset } => ObserverOp::SetReset {
+                set: compile(set, index)?,
+                reset: compile(reset, index)?,
+            },
+            ObserverRule::Toggle(e) => ObserverOp::Toggle(compile(e, index)?),
+        };
+        observers.push((s, op));
+    }
+    Ok(observers)
+}
+
+/// Per part: the flags that send it to the fallback (none without coupling)
+/// and its outputs (indices into the laws).
+fn part_fallbacks(
+    plant: &Plant,
+    coupling: Coupling,
+    index: &HashMap<String, usize>,
+    actuators: &[usize],
+) -> Vec<(Vec<usize>, Vec<usize>)> {
+    let mut part_fallback = Vec::new();
+    for part in &plant.parts {
+        let mut flags = Vec::new();
+        if coupling != Coupling::None {
+            for p in &plant.partitions {
+                if p.faults.iter().any(|label| stops_part(plant, part, label)) {
+                    flags.push(index[&p.flag()]);
+                }
+            }
+        }
+        let outputs = part
+            .actuators
+            .iter()
+            .filter_map(|a| actuators.iter().position(|&x| x == a.index()))
+            .collect();
+        part_fallback.push((flags, outputs));
+    }
+    part_fallback
+}
+
+/// Whether the fault `label` is an actuator or element fault of `part`: a
+/// stuck actuator of the part, or its element blocked.
+fn stops_part(plant: &Plant, part: &Part, label: &str) -> bool {
+    plant.faults.iter().any(|f| {
+        f.label == label
+            && match &f.template {
+                FaultTemplate::ActuatorStuck0(a) | FaultTemplate::ActuatorStuck1(a) => {
+                    part.actuators.iter().any(|x| plant.signals.name(*x) == a)
+                }
+                FaultTemplate::BlockedAt { element, .. }
+                | FaultTemplate::BlockedBetween { element, .. } => {
+                    part.element.as_deref() == Some(element.as_str())
+                }
+                _ => false,
+            }
+    })
+}
+
+/// Per slot: whether the caller sets it between scans (internal variables,
+/// `def_` and `suspect_` flags).
+fn external_slots(plant: &Plant, index: &HashMap<String, usize>, n: usize) -> Vec<bool> {
+    let mut external = vec![false; n];
+    for v in &plant.variables {
+        external[index[v]] = true;
+    }
+    for p in &plant.partitions {
+        external[index[&p.flag()]] = true;
+        external[index[&format!("suspect_{}", p.name)]] = true;
+    }
+    external
+}
+
 impl Filter {
     /// The filter of `plant`. `model` gives the sensors' estimates; without it
     /// (or with [`Coupling::None`]) the constraints are never rewritten.
     pub fn new(plant: &Plant, model: Option<&Model>, coupling: Coupling) -> Result<Filter, String> {
-        let mut names: Vec<String> = Vec::new();
-        let mut index: HashMap<String, usize> = HashMap::new();
-        let mut slot = |name: &str, names: &mut Vec<String>| -> usize {
-            if let Some(&i) = index.get(name) {
-                return i;
-            }
-            names.push(name.to_string());
-            index.insert(name.to_string(), names.len() - 1);
-            names.len() - 1
-        };
+        let mut slots = SlotTable::default();
         for (_, s) in plant.signals.iter() {
-            slot(&s.name, &mut names);
+            slots.slot(&s.name);
         }
-        let signals = names.len();
+        let signals = slots.names.len();
         let actuators: Vec<usize> = plant
             .signals
             .of_kind(SignalKind::Actuator)
             .map(|a| a.index())
             .collect();
         for v in &plant.variables {
-            slot(v, &mut names);
+            slots.slot(v);
         }
         for o in &plant.observers {
-            slot(&o.name, &mut names);
+            slots.slot(&o.name);
         }
         for p in &plant.partitions {
-            slot(&p.flag(), &mut names);
-            slot(&format!("suspect_{}", p.name), &mut names);
+            slots.slot(&p.flag());
+            slots.slot(&format!("suspect_{}", p.name));
         }
         let (estimates, clock_defs) = match (model, coupling) {
             (Some(m), c) if c != Coupling::None => estimates_and_clocks(plant, m)?,
             _ => (Vec::new(), Vec::new()),
         };
-        let mut clocks = Vec::new();
-        for (part_name, groups) in clock_defs {
-            let part = plant
-                .parts
-                .iter()
-                .find(|p| p.name == part_name)
-                .ok_or_else(|| format!("no part {part_name}"))?;
-            let groups = groups
-                .into_iter()
-                .map(|(values, intervals)| {
-                    let iv = intervals
-                        .into_iter()
-                        .map(|(n, from, to)| (slot(&n, &mut names), from, to))
-                        .collect();
-                    (values, iv)
-                })
-                .collect();
-            clocks.push(PartClock {
-                actuators: part.actuators.iter().map(|a| a.index()).collect(),
-                since: None,
-                groups,
-            });
-        }
+        let clocks = part_clocks(plant, clock_defs, &mut slots)?;
+        let SlotTable { names, index } = slots;
         let options = RewriteOptions {
             use_suspects: coupling == Coupling::FlagsAndSuspects,
         };
-        let mut safety = Vec::new();
-        for c in &plant.constraints {
-            let expr = rewrite(&c.expr, &estimates, options);
-            let op = compile(&expr, &index)?;
-            safety.push(Compiled {
-                name: c.name.clone(),
-                outputs: outputs_of(&c.expr, &index, &actuators),
-                expr,
-                op,
-            });
-        }
-        let mut functional = Vec::new();
-        for c in &plant.functional {
-            let expr = if estimates.is_empty() {
-                c.expr.clone()
+        let safety = compile_constraints(&plant.constraints, &index, &actuators, |e| {
+            rewrite(e, &estimates, options)
+        })?;
+        let functional = compile_constraints(&plant.functional, &index, &actuators, |e| {
+            if estimates.is_empty() {
+                e.clone()
             } else {
-                rewrite_certain(&c.expr, &estimates, options)
-            };
-            let op = compile(&expr, &index)?;
-            functional.push(Compiled {
-                name: c.name.clone(),
-                outputs: outputs_of(&c.expr, &index, &actuators),
-                expr,
-                op,
-            });
-        }
-        let mut laws: Vec<LawSlots> = actuators
-            .iter()
-            .map(|&slot| LawSlots {
-                slot,
-                ..LawSlots::default()
-            })
-            .collect();
-        let mut combined = Vec::new();
-        for (i, (c, compiled)) in plant.constraints.iter().zip(&safety).enumerate() {
-            match (&c.priority, compiled.outputs.as_slice()) {
-                (None, [k]) => {
-                    if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
-                        law.safety.push(i);
-                    }
-                }
-                (Some(p), outs) => {
-                    let p = p.index();
-                    let others: Vec<usize> = outs.iter().copied().filter(|&o| o != p).collect();
-                    match others.as_slice() {
-                        [other] => combined.push(Combined {
-                            constraint: i,
-                            other: *other,
-                        }),
-                        _ => {
-                            return Err(format!(
-                                "constraint {}: a combined constraint reads its priority output and exactly one other",
-                                c.name
-                            ));
-                        }
-                    }
-                }
-                // Read by no output, or by several with no priority: only checked.
-                _ => {}
+                rewrite_certain(e, &estimates, options)
             }
-        }
-        for (i, c) in functional.iter().enumerate() {
-            for k in &c.outputs {
-                if let Some(law) = laws.iter_mut().find(|l| l.slot == *k) {
-                    law.functional.push(i);
-                    law.asks_for_one |= reads_negated(&c.op, *k);
-                }
-            }
-        }
-        let mut observers = Vec::new();
-        for o in &plant.observers {
-            let s = index[&o.name];
-            let op = match &o.rule {
-                ObserverRule::SetReset { set, reset } => ObserverOp::SetReset {
-                    set: compile(set, &index)?,
-                    reset: compile(reset, &index)?,
-                },
-                ObserverRule::Toggle(e) => ObserverOp::Toggle(compile(e, &index)?),
-            };
-            observers.push((s, op));
-        }
-        let mut part_fallback = Vec::new();
-        for part in &plant.parts {
-            let mut flags = Vec::new();
-            if coupling != Coupling::None {
-                for p in &plant.partitions {
-                    let hits = p.faults.iter().any(|label| {
-                        plant.faults.iter().any(|f| {
-                            f.label == *label
-                                && match &f.template {
-                                    FaultTemplate::ActuatorStuck0(a)
-                                    | FaultTemplate::ActuatorStuck1(a) => {
-                                        part.actuators.iter().any(|x| plant.signals.name(*x) == a)
-                                    }
-                                    FaultTemplate::BlockedAt { element, .. }
-                                    | FaultTemplate::BlockedBetween { element, .. } => {
-                                        part.element.as_deref() == Some(element.as_str())
-                                    }
-                                    _ => false,
-                                }
-                        })
-                    });
-                    if hits {
-                        flags.push(index[&p.flag()]);
-                    }
-                }
-            }
-            let outputs = part
-                .actuators
-                .iter()
-                .filter_map(|a| actuators.iter().position(|&x| x == a.index()))
-                .collect();
-            part_fallback.push((flags, outputs));
-        }
+        })?;
+        let (laws, combined) = laws_and_combined(plant, &safety, &functional, &actuators)?;
+        let observers = compile_observers(plant, &index)?;
+        let part_fallback = part_fallbacks(plant, coupling, &index, &actuators);
         let n = names.len();
         let mut cur = vec![false; n];
         for o in &plant.observers {
             cur[index[&o.name]] = o.init;
         }
         let sensor = (0..signals).map(|i| !actuators.contains(&i)).collect();
-        let mut external = vec![false; n];
-        for v in &plant.variables {
-            external[index[v]] = true;
-        }
-        for p in &plant.partitions {
-            external[index[&p.flag()]] = true;
-            external[index[&format!("suspect_{}", p.name)]] = true;
-        }
+        let external = external_slots(plant, &index, n);
         Ok(Filter {
             names,
             index,

@@ -44,7 +44,7 @@ use diagnoser::plant::ObserverRule;
 use diagnoser::{MS, Plant, SignalKind, Time};
 
 use crate::filter::{Filter, Mode, PartIntervals};
-use crate::synthesis::simplify;
+use crate::synthesis::{CombinedLaw, OutputLaw, simplify};
 
 /// What to generate.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -687,18 +687,37 @@ impl<'a> Gen<'a> {
         }
     }
 
+    /// The statements of one scan, in the order the Rust filter runs them:
+    /// estimate intervals, observers, forced values, orders, the check of the
+    /// orders, the fallbacks, and the restart of the clocks.
     fn body(&self, out: &mut String) -> Result<BodyFacts, String> {
         let mut facts = BodyFacts::default();
         let period = self.plant.scan_period;
         let actuators = self.actuators();
         let clocks = self.clocks()?;
-
-        // Estimate intervals.
         for c in &clocks {
-            self.intervals_block(out, c, period, &mut facts)?;
+            self.write_intervals(out, c, period, &mut facts)?;
         }
+        self.write_observers(out)?;
+        let (laws, combined) = self.filter.laws();
+        let forced = self.write_forced_values(out, &laws, &mut facts)?;
+        if self.options.mode == Mode::Control {
+            self.write_safe_control(out, &laws, &forced)?;
+            self.write_combined_constraints(out, &combined)?;
+        } else {
+            self.write_proposed_orders(out, &actuators)?;
+        }
+        self.write_check(out, &mut facts)?;
+        self.write_fallback(out, &actuators, &forced)?;
+        self.write_part_fallbacks(out, &forced, &mut facts)?;
+        self.write_clock_restarts(out, &clocks, &facts)?;
+        Ok(facts)
+    }
 
-        // Observers.
+    /// The observers, from the plant file, updated before this scan's orders
+    /// (as in the Rust filter: an observer reading an output sees its previous
+    /// order).
+    fn write_observers(&self, out: &mut String) -> Result<(), String> {
         if !self.plant.observers.is_empty() {
             out.push_str(
                 "\n(* Observers, from the plant file: on a set/reset observer reset wins. *)\n",
@@ -726,47 +745,74 @@ impl<'a> Gen<'a> {
             }
             match &o.rule {
                 ObserverRule::SetReset { set, reset } => {
-                    let _ = writeln!(
-                        out,
-                        "(* {}: set on {}, reset on {} *)",
-                        comment_text(&o.name),
-                        comment_text(&set.to_string()),
-                        comment_text(&reset.to_string())
-                    );
-                    let set = self.translate(set, Ctx::Before)?;
-                    let reset = self.translate(reset, Ctx::Before)?;
-                    let mut branches = Vec::new();
-                    if reset != Expr::Const(false) {
-                        branches.push((reset, "FALSE"));
-                    }
-                    if set != Expr::Const(false) {
-                        branches.push((set, "TRUE"));
-                    }
-                    if_chain(out, "", &branches, &id);
+                    self.write_set_reset(out, &o.name, &id, set, reset)?;
                 }
-                ObserverRule::Toggle(e) => {
-                    let _ = writeln!(
-                        out,
-                        "(* {}: toggles on {} *)",
-                        comment_text(&o.name),
-                        comment_text(&e.to_string())
-                    );
-                    let e = self.translate(e, Ctx::Before)?;
-                    if e != Expr::Const(false) {
-                        out.push_str(&wrapped("", "IF ", &e, " THEN\n"));
-                        let _ = writeln!(out, "    {id} := NOT {id};\nEND_IF;");
-                    }
-                }
+                ObserverRule::Toggle(e) => self.write_toggle(out, &o.name, &id, e)?,
             }
         }
+        Ok(())
+    }
 
-        // Forced values of each output.
-        let (laws, combined) = self.filter.laws();
+    /// A set/reset observer: reset wins, a condition that never holds is left out.
+    fn write_set_reset(
+        &self,
+        out: &mut String,
+        name: &str,
+        id: &str,
+        set: &Expr,
+        reset: &Expr,
+    ) -> Result<(), String> {
+        let _ = writeln!(
+            out,
+            "(* {}: set on {}, reset on {} *)",
+            comment_text(name),
+            comment_text(&set.to_string()),
+            comment_text(&reset.to_string())
+        );
+        let set = self.translate(set, Ctx::Before)?;
+        let reset = self.translate(reset, Ctx::Before)?;
+        let mut branches = Vec::new();
+        if reset != Expr::Const(false) {
+            branches.push((reset, "FALSE"));
+        }
+        if set != Expr::Const(false) {
+            branches.push((set, "TRUE"));
+        }
+        if_chain(out, "", &branches, id);
+        Ok(())
+    }
+
+    /// A toggle observer: flips while its condition holds.
+    fn write_toggle(&self, out: &mut String, name: &str, id: &str, e: &Expr) -> Result<(), String> {
+        let _ = writeln!(
+            out,
+            "(* {}: toggles on {} *)",
+            comment_text(name),
+            comment_text(&e.to_string())
+        );
+        let e = self.translate(e, Ctx::Before)?;
+        if e != Expr::Const(false) {
+            out.push_str(&wrapped("", "IF ", &e, " THEN\n"));
+            let _ = writeln!(out, "    {id} := NOT {id};\nEND_IF;");
+        }
+        Ok(())
+    }
+
+    /// What the simple safety constraints force on each output (`f0k` in safe
+    /// control only, `f1k` always, for the fallback). A forced value that is
+    /// not a constant is kept in a variable (`A4_F0`, `A4_F1`), declared from
+    /// `facts`; the map gives each output's pair as read afterwards.
+    fn write_forced_values(
+        &self,
+        out: &mut String,
+        laws: &[OutputLaw],
+        facts: &mut BodyFacts,
+    ) -> Result<Forced, String> {
         let control = self.options.mode == Mode::Control;
-        let mut forced: HashMap<String, (Expr, Expr)> = HashMap::new();
+        let mut forced = Forced::new();
         let mut section = String::new();
         let mut unforced = Vec::new();
-        for law in &laws {
+        for law in laws {
             let id = stem(&law.output);
             let ctx = Ctx::Law(&law.output);
             let (sources, _) = self.law_sources(&law.output);
@@ -793,8 +839,8 @@ impl<'a> Gen<'a> {
             } else {
                 let _ = writeln!(section, "(* {}: from {} *)", law.output, sources.join(", "));
             }
-            let f0 = keep(&f0, "_F0", &mut facts, &mut section);
-            let f1 = keep(&f1, "_F1", &mut facts, &mut section);
+            let f0 = keep(&f0, "_F0", facts, &mut section);
+            let f1 = keep(&f1, "_F1", facts, &mut section);
             forced.insert(law.output.clone(), (f0, f1));
         }
         let what = if control {
@@ -811,75 +857,104 @@ impl<'a> Gen<'a> {
                 format!("\n   Nothing forced on {}.", unforced.join(", "))
             }
         );
+        Ok(forced)
+    }
 
-        // The orders.
-        if control {
-            out.push_str(
-                "\n(* Safe control by constraints (seed 001 section 4): S'k := NOT f0k AND g1k OR f1k, g1k from the\n   functional constraints (an output with none keeps the control program's order). *)\n",
+    /// The orders by safe control by constraints: `S'k := NOT f0k AND g1k OR
+    /// f1k`, one output after the other.
+    fn write_safe_control(
+        &self,
+        out: &mut String,
+        laws: &[OutputLaw],
+        forced: &Forced,
+    ) -> Result<(), String> {
+        out.push_str(
+            "\n(* Safe control by constraints (seed 001 section 4): S'k := NOT f0k AND g1k OR f1k, g1k from the\n   functional constraints (an output with none keeps the control program's order). *)\n",
+        );
+        for law in laws {
+            let id = self.id(&law.output)?;
+            let (_, functional) = self.law_sources(&law.output);
+            let g1 = self.translate(&law.g1, Ctx::Law(&law.output))?;
+            let (f0, f1) = forced
+                .get(&law.output)
+                .cloned()
+                .unwrap_or((Expr::Const(false), Expr::Const(false)));
+            let _ = writeln!(
+                out,
+                "(* {}: g1 {} *)",
+                law.output,
+                if functional.is_empty() {
+                    format!("= {}_REQ (no functional constraint)", stem(&law.output))
+                } else {
+                    format!("from {}", functional.join(", "))
+                }
             );
-            for law in &laws {
-                let id = self.id(&law.output)?;
-                let (_, functional) = self.law_sources(&law.output);
-                let g1 = self.translate(&law.g1, Ctx::Law(&law.output))?;
-                let (f0, f1) = forced
-                    .get(&law.output)
-                    .cloned()
-                    .unwrap_or((Expr::Const(false), Expr::Const(false)));
-                let _ = writeln!(
-                    out,
-                    "(* {}: g1 {} *)",
-                    law.output,
-                    if functional.is_empty() {
-                        format!("= {}_REQ (no functional constraint)", stem(&law.output))
-                    } else {
-                        format!("from {}", functional.join(", "))
-                    }
-                );
-                let safe = simplify(&Expr::Or(vec![Expr::And(vec![not(f0), g1]), f1]));
-                out.push_str(&wrapped("", &format!("{id} := "), &safe, ";\n"));
+            let safe = simplify(&Expr::Or(vec![Expr::And(vec![not(f0), g1]), f1]));
+            out.push_str(&wrapped("", &format!("{id} := "), &safe, ";\n"));
+        }
+        Ok(())
+    }
+
+    /// The combined constraints after safe control: while one holds, its
+    /// non-priority output goes to 0. The Rust filter loops until nothing
+    /// changes, at most one pass more than there are combined constraints; the
+    /// loop is unrolled to that many passes.
+    fn write_combined_constraints(
+        &self,
+        out: &mut String,
+        combined: &[CombinedLaw],
+    ) -> Result<(), String> {
+        if combined.is_empty() {
+            return Ok(());
+        }
+        let passes = combined.len() + 1;
+        let _ = writeln!(
+            out,
+            "\n(* Combined constraints (seed 001 fig. 3): while one holds, its non-priority output\n   goes to 0. The loop is unrolled: {passes} passes, as many as the Rust filter runs at most. *)"
+        );
+        for pass in 1..=passes {
+            if pass == 1 {
+                let _ = writeln!(out, "(* Pass 1 of {passes}. *)");
+            } else {
+                let _ = writeln!(out, "(* Pass {pass} of {passes}: the same. *)");
             }
-            if !combined.is_empty() {
-                let passes = combined.len() + 1;
-                let _ = writeln!(
-                    out,
-                    "\n(* Combined constraints (seed 001 fig. 3): while one holds, its non-priority output\n   goes to 0. The loop is unrolled: {passes} passes, as many as the Rust filter runs at most. *)"
-                );
-                for pass in 1..=passes {
-                    if pass == 1 {
-                        let _ = writeln!(out, "(* Pass 1 of {passes}. *)");
-                    } else {
-                        let _ = writeln!(out, "(* Pass {pass} of {passes}: the same. *)");
-                    }
-                    for c in &combined {
-                        let other = self.id(&c.other)?;
-                        if pass == 1 {
-                            let _ = writeln!(
-                                out,
-                                "(* {}; priority {}: {} goes to 0 *)",
-                                self.constraint_note(&c.constraint, &c.expr),
-                                c.priority,
-                                c.other
-                            );
-                        }
-                        let holds = self.translate(&c.expr, Ctx::Orders)?;
-                        let cond = simplify(&Expr::And(vec![holds, var(&other)]));
-                        if cond != Expr::Const(false) {
-                            out.push_str(&wrapped("", "IF ", &cond, " THEN\n"));
-                            let _ = writeln!(out, "    {other} := FALSE;\nEND_IF;");
-                        }
-                    }
+            for c in combined {
+                let other = self.id(&c.other)?;
+                if pass == 1 {
+                    let _ = writeln!(
+                        out,
+                        "(* {}; priority {}: {} goes to 0 *)",
+                        self.constraint_note(&c.constraint, &c.expr),
+                        c.priority,
+                        c.other
+                    );
+                }
+                let holds = self.translate(&c.expr, Ctx::Orders)?;
+                let cond = simplify(&Expr::And(vec![holds, var(&other)]));
+                if cond != Expr::Const(false) {
+                    out.push_str(&wrapped("", "IF ", &cond, " THEN\n"));
+                    let _ = writeln!(out, "    {other} := FALSE;\nEND_IF;");
                 }
             }
-        } else {
-            out.push_str("\n(* The orders the control program proposes. *)\n");
-            for a in &actuators {
-                let id = self.id(a)?;
-                self.req_used.borrow_mut().insert(a.clone());
-                let _ = writeln!(out, "{id} := {}_REQ;", stem(a));
-            }
         }
+        Ok(())
+    }
 
-        // The check.
+    /// The orders as the control program proposes them (filter mode).
+    fn write_proposed_orders(&self, out: &mut String, actuators: &[String]) -> Result<(), String> {
+        out.push_str("\n(* The orders the control program proposes. *)\n");
+        for a in actuators {
+            let id = self.id(a)?;
+            self.req_used.borrow_mut().insert(a.clone());
+            let _ = writeln!(out, "{id} := {}_REQ;", stem(a));
+        }
+        Ok(())
+    }
+
+    /// The check of the orders: one `<constraint>_VIOLATED` per safety
+    /// constraint, as the filter evaluates it (rewritten when coupled), and
+    /// `FALLBACK` if any is set.
+    fn write_check(&self, out: &mut String, facts: &mut BodyFacts) -> Result<(), String> {
         out.push_str("\n(* Safety constraints on the orders: each must stay 0. *)\n");
         let mut bits = Vec::new();
         for ((name, expr), original) in self
@@ -901,12 +976,33 @@ impl<'a> Gen<'a> {
         }
         let any = simplify(&Expr::Or(bits));
         out.push_str(&wrapped("", "FALLBACK := ", &any, ";\n"));
+        Ok(())
+    }
 
-        // The fallback.
+    /// The plant's fallback: on a violated constraint every order takes `f1k`.
+    fn write_fallback(
+        &self,
+        out: &mut String,
+        actuators: &[String],
+        forced: &Forced,
+    ) -> Result<(), String> {
         out.push_str(
             "\n(* Fallback: a constraint was violated, so every order takes the value the constraints\n   force, priority to 0 (Sk := f1k). *)\nIF FALLBACK THEN\n",
         );
-        for a in &actuators {
+        self.write_orders_to_f1(out, actuators, forced)?;
+        out.push_str("END_IF;\n");
+        Ok(())
+    }
+
+    /// `A := f1;` for each of `actuators`, inside an `IF`: the value the
+    /// constraints force (0 where they force nothing).
+    fn write_orders_to_f1(
+        &self,
+        out: &mut String,
+        actuators: &[String],
+        forced: &Forced,
+    ) -> Result<(), String> {
+        for a in actuators {
             let f1 = forced.get(a).map_or(Expr::Const(false), |f| f.1.clone());
             out.push_str(&wrapped(
                 "    ",
@@ -915,7 +1011,18 @@ impl<'a> Gen<'a> {
                 ";\n",
             ));
         }
-        out.push_str("END_IF;\n");
+        Ok(())
+    }
+
+    /// The parts' fallbacks: while one of a part's actuator or element faults is
+    /// flagged (and the plant is not in its fallback already), its orders take
+    /// `f1k`. One `FALLBACK_<part>` per part with such a fault.
+    fn write_part_fallbacks(
+        &self,
+        out: &mut String,
+        forced: &Forced,
+        facts: &mut BodyFacts,
+    ) -> Result<(), String> {
         // `fallback_parts` keeps the plant's order of parts: match them in turn.
         let mut next_part = 0;
         for (flags, acts) in self.filter.fallback_parts() {
@@ -946,26 +1053,28 @@ impl<'a> Gen<'a> {
             let cond = simplify(&Expr::And(vec![not(var("FALLBACK")), Expr::Or(flag_exprs)]));
             out.push_str(&wrapped("", &format!("{bit} := "), &cond, ";\n"));
             let _ = writeln!(out, "IF {bit} THEN");
-            for a in &acts {
-                let f1 = forced.get(a).map_or(Expr::Const(false), |f| f.1.clone());
-                out.push_str(&wrapped(
-                    "    ",
-                    &format!("{} := ", self.id(a)?),
-                    &f1,
-                    ";\n",
-                ));
-            }
+            self.write_orders_to_f1(out, &acts, forced)?;
             out.push_str("END_IF;\n");
             facts.part_bits.push((bit, part));
         }
+        Ok(())
+    }
 
-        // End of the scan: clocks, previous values.
+    /// The end of the scan for the clocks: a part whose orders changed in this
+    /// scan restarts its timer (`IN := FALSE`, so that `ET` counts from the next
+    /// call) and notes that its clock has started. Only what the intervals read.
+    fn write_clock_restarts(
+        &self,
+        out: &mut String,
+        clocks: &[Clock],
+        facts: &BodyFacts,
+    ) -> Result<(), String> {
         if !clocks.is_empty() {
             out.push_str(
                 "\n(* Restart the clock of a part whose orders changed in this scan. *)\n",
             );
         }
-        for c in &clocks {
+        for c in clocks {
             let pid = stem(&c.part);
             let changed = c
                 .actuators
@@ -993,11 +1102,11 @@ impl<'a> Gen<'a> {
             }
             out.push_str("END_IF;\n");
         }
-        Ok(facts)
+        Ok(())
     }
 
     /// The intervals of one clocked part.
-    fn intervals_block(
+    fn write_intervals(
         &self,
         out: &mut String,
         c: &Clock,
@@ -1142,6 +1251,10 @@ struct BodyFacts {
     set_used: BTreeSet<String>,
 }
 
+/// Per output, what the constraints force on it, `(f0, f1)`, as the orders
+/// read it: a constant, or the variable that holds it (`A4_F1`).
+type Forced = HashMap<String, (Expr, Expr)>;
+
 /// The filter as a Structured Text function block (see the module documentation).
 ///
 /// # Errors
@@ -1150,231 +1263,298 @@ pub fn generate(plant: &Plant, filter: &Filter, options: &StOptions) -> Result<S
     let g = Gen::new(plant, filter, options)?;
     let mut body = String::new();
     let facts = g.body(&mut body)?;
-
-    // Previous values, updated at the end of the scan.
-    let prev_used = g.prev_used.borrow().clone();
-    let ordered: Vec<&String> = g
-        .filter
-        .names()
-        .iter()
-        .filter(|n| prev_used.contains(*n))
-        .collect();
-    if !ordered.is_empty() {
-        body.push_str("\n(* Values for the next scan's edges and prev(). *)\n");
-    }
-    for n in &ordered {
-        let id = g.id(n)?;
-        let _ = writeln!(body, "{}_PREV := {id};", stem(n));
-    }
-
+    let ordered = g.write_prev_updates(&mut body)?;
+    // What the body reads of the proposed orders, before the first scan reads more.
     let req_in_body = g.req_used.borrow().clone();
-    // First scan: no edge. As in `Filter::scan`, the proposed orders stand
-    // for those of the scan before.
-    let first: Vec<&&String> = ordered
-        .iter()
-        .filter(|n| {
-            matches!(
-                g.kind.get(n.as_str()),
-                Some(Kind::Sensor | Kind::Actuator | Kind::Input)
-            )
-        })
-        .collect();
-    let mut head = String::new();
-    if !first.is_empty() {
-        head.push_str(
-            "\n(* First scan: no edge. The proposed orders stand for those of the scan before,\n   as in the Rust filter. *)\nIF FIRST_SCAN THEN\n",
-        );
-        for n in &first {
-            let id = g.id(n)?;
-            if g.kind.get(n.as_str()) == Some(&Kind::Actuator) {
-                g.req_used.borrow_mut().insert(n.to_string());
-                let _ = writeln!(head, "    {0}_PREV := {0}_REQ;", stem(n));
-            } else {
-                let _ = writeln!(head, "    {}_PREV := {id};", stem(n));
-            }
-        }
-        head.push_str("    FIRST_SCAN := FALSE;\nEND_IF;\n");
-    }
+    let head = g.first_scan_block(&ordered)?;
 
     let mut out = String::new();
-    let mode = match options.mode {
-        Mode::Filter => "filter: the control program's orders are checked",
-        Mode::Control => "safe control by constraints: the orders are computed, then checked",
-    };
-    let coupling = match filter.coupling() {
-        crate::filter::Coupling::None => {
-            "none: the constraints read the sensors as they are".to_string()
-        }
-        c => {
-            let estimates: Vec<String> = filter
-                .estimates()
-                .iter()
-                .map(|e| format!("{} (while {})", e.sensor, g.switch_text(&e.partition)))
-                .collect();
-            if estimates.is_empty() {
-                format!("{}: no learned estimate", c.name())
-            } else {
-                format!(
-                    "{}: learned estimates of {}",
-                    c.name(),
-                    estimates.join(", ")
-                )
-            }
-        }
-    };
-    let _ = writeln!(
-        out,
-        "(* {name}: the safety filter of plant '{plant}', generated by gardefou (filter-coupling st.rs).\n   Mode: {mode}.\n   Coupling: {coupling}.\n   Call it once per PLC scan, every {p} ms (the plant's scan period, which the estimate\n   intervals assume), after the control program and before the outputs are written:\n   sensors as read in this scan, the proposed orders *_REQ, the diagnosers' flags in;\n   the orders to write out. *)",
-        name = options.name,
-        plant = comment_text(&plant.name),
-        p = ms_text(plant.scan_period),
-        coupling = comment_text(&coupling),
-    );
-    let _ = writeln!(out, "FUNCTION_BLOCK {}", options.name);
-
-    // Inputs.
-    out.push_str("VAR_INPUT\n");
-    for s in plant.signals.of_kind(SignalKind::Sensor) {
-        let s = plant.signals.get(s);
-        let _ = writeln!(
-            out,
-            "    {} : BOOL; (* {} *)",
-            g.id(&s.name)?,
-            comment_text(&s.description)
-        );
-    }
-    let req = g.req_used.borrow().clone();
-    for s in plant.signals.of_kind(SignalKind::Actuator) {
-        let s = plant.signals.get(s);
-        if req.contains(&s.name) {
-            let only_first = if req_in_body.contains(&s.name) {
-                ""
-            } else {
-                " (read at the first scan only)"
-            };
-            let _ = writeln!(
-                out,
-                "    {}_REQ : BOOL; (* proposed by the control program{only_first}: {} *)",
-                stem(&s.name),
-                comment_text(&s.description)
-            );
-        }
-    }
-    let read = g.read.borrow().clone();
-    for n in filter.names() {
-        if read.contains(n) {
-            let what = describe_input(plant, n);
-            let _ = writeln!(
-                out,
-                "    {} : BOOL; (* {} *)",
-                g.id(n)?,
-                comment_text(&what)
-            );
-        }
-    }
-    out.push_str("END_VAR\nVAR_OUTPUT\n");
-    for s in plant.signals.of_kind(SignalKind::Actuator) {
-        let s = plant.signals.get(s);
-        let _ = writeln!(
-            out,
-            "    {} : BOOL; (* {} *)",
-            g.id(&s.name)?,
-            comment_text(&s.description)
-        );
-    }
-    for (bit, name, expr) in &facts.violated {
-        let _ = writeln!(
-            out,
-            "    {bit} : BOOL; (* {} was 1 on the orders *)",
-            comment_text(&format!("{name} = {expr}"))
-        );
-    }
-    out.push_str(
-        "    FALLBACK : BOOL; (* a safety constraint was violated: every order took f1k *)\n",
-    );
-    for (bit, part) in &facts.part_bits {
-        let _ = writeln!(
-            out,
-            "    {bit} : BOOL; (* part {} is in its fallback: an actuator or element fault is flagged *)",
-            comment_text(part)
-        );
-    }
-    out.push_str("END_VAR\nVAR\n");
-    if !first.is_empty() {
-        out.push_str("    FIRST_SCAN : BOOL := TRUE;\n");
-    }
-    for o in &plant.observers {
-        let init = if o.init { " := TRUE" } else { "" };
-        let _ = writeln!(
-            out,
-            "    {} : BOOL{init}; (* observer {} *)",
-            g.id(&o.name)?,
-            comment_text(&o.name)
-        );
-    }
-    for (id, output, f1) in &facts.forced_vars {
-        let what = if *f1 { "must be 1" } else { "must be 0" };
-        let _ = writeln!(
-            out,
-            "    {id} : BOOL; (* the safety constraints say {output} {what} *)"
-        );
-    }
-    for c in g.clocks()? {
-        let pid = stem(&c.part);
-        if facts.timed.contains(&c.part) {
-            let _ = writeln!(
-                out,
-                "    {pid}_CLK : TON; (* time since the scan that wrote {}'s order, minus one scan *)",
-                c.actuators.join(", ")
-            );
-        }
-        if facts.set_used.contains(&c.part) {
-            let _ = writeln!(
-                out,
-                "    {pid}_CLK_SET : BOOL; (* {} changed at least once *)",
-                c.actuators.join(", ")
-            );
-        }
-        for (id, name, values, bounds) in &facts.intervals {
-            let belongs = c
-                .intervals
-                .states
-                .iter()
-                .any(|(_, iv)| iv.iter().any(|i| i.name == *name));
-            if belongs {
-                let state: Vec<String> = c
-                    .actuators
-                    .iter()
-                    .zip(values)
-                    .map(|(a, v)| format!("{a} = {}", u8::from(*v)))
-                    .collect();
-                let _ = writeln!(
-                    out,
-                    "    {id} : BOOL; (* {} {bounds} since {} *)",
-                    name,
-                    state.join(", ")
-                );
-            }
-        }
-    }
-    for n in &ordered {
-        let init = plant
-            .observers
-            .iter()
-            .find(|o| o.name == **n)
-            .is_some_and(|o| o.init);
-        let init = if init { " := TRUE" } else { "" };
-        let _ = writeln!(
-            out,
-            "    {}_PREV : BOOL{init}; (* {n} in the previous scan *)",
-            stem(n)
-        );
-    }
-    out.push_str("END_VAR\n");
+    g.write_header(&mut out);
+    g.write_inputs(&mut out, &req_in_body)?;
+    g.write_outputs(&mut out, &facts)?;
+    // The first scan's block is empty when it has nothing to set.
+    g.write_locals(&mut out, &facts, !head.is_empty(), &ordered)?;
     out.push_str(&head);
     out.push_str(&body);
     out.push_str("END_FUNCTION_BLOCK\n");
     Ok(out)
+}
+
+/// The function block around the body: the previous values, the first scan,
+/// the header and the declarations, which depend on what the body read.
+impl<'a> Gen<'a> {
+    /// The end of the scan: the previous values the body read, for the next
+    /// scan's edges and `prev()`. Returns those names, in the filter's order.
+    fn write_prev_updates(&self, body: &mut String) -> Result<Vec<&'a String>, String> {
+        let prev_used = self.prev_used.borrow().clone();
+        let ordered: Vec<&String> = self
+            .filter
+            .names()
+            .iter()
+            .filter(|n| prev_used.contains(*n))
+            .collect();
+        if !ordered.is_empty() {
+            body.push_str("\n(* Values for the next scan's edges and prev(). *)\n");
+        }
+        for n in &ordered {
+            let id = self.id(n)?;
+            let _ = writeln!(body, "{}_PREV := {id};", stem(n));
+        }
+        Ok(ordered)
+    }
+
+    /// The first scan, which sees no edge: the previous values of the signals
+    /// and inputs are their present ones, and, as in `Filter::scan`, the
+    /// proposed orders stand for those of the scan before. Empty when no such
+    /// previous value is read.
+    fn first_scan_block(&self, ordered: &[&String]) -> Result<String, String> {
+        let first: Vec<&&String> = ordered
+            .iter()
+            .filter(|n| {
+                matches!(
+                    self.kind.get(n.as_str()),
+                    Some(Kind::Sensor | Kind::Actuator | Kind::Input)
+                )
+            })
+            .collect();
+        let mut head = String::new();
+        if !first.is_empty() {
+            head.push_str(
+                "\n(* First scan: no edge. The proposed orders stand for those of the scan before,\n   as in the Rust filter. *)\nIF FIRST_SCAN THEN\n",
+            );
+            for n in &first {
+                let id = self.id(n)?;
+                if self.kind.get(n.as_str()) == Some(&Kind::Actuator) {
+                    self.req_used.borrow_mut().insert(n.to_string());
+                    let _ = writeln!(head, "    {0}_PREV := {0}_REQ;", stem(n));
+                } else {
+                    let _ = writeln!(head, "    {}_PREV := {id};", stem(n));
+                }
+            }
+            head.push_str("    FIRST_SCAN := FALSE;\nEND_IF;\n");
+        }
+        Ok(head)
+    }
+
+    /// The comment at the top (plant, mode, coupling, how to call the block)
+    /// and the `FUNCTION_BLOCK` line.
+    fn write_header(&self, out: &mut String) {
+        let mode = match self.options.mode {
+            Mode::Filter => "filter: the control program's orders are checked",
+            Mode::Control => "safe control by constraints: the orders are computed, then checked",
+        };
+        let _ = writeln!(
+            out,
+            "(* {name}: the safety filter of plant '{plant}', generated by gardefou (filter-coupling st.rs).\n   Mode: {mode}.\n   Coupling: {coupling}.\n   Call it once per PLC scan, every {p} ms (the plant's scan period, which the estimate\n   intervals assume), after the control program and before the outputs are written:\n   sensors as read in this scan, the proposed orders *_REQ, the diagnosers' flags in;\n   the orders to write out. *)",
+            name = self.options.name,
+            plant = comment_text(&self.plant.name),
+            p = ms_text(self.plant.scan_period),
+            coupling = comment_text(&self.coupling_text()),
+        );
+        let _ = writeln!(out, "FUNCTION_BLOCK {}", self.options.name);
+    }
+
+    /// The coupling, for the header: which sensors' estimates the constraints
+    /// switch to, and on which flags.
+    fn coupling_text(&self) -> String {
+        match self.filter.coupling() {
+            crate::filter::Coupling::None => {
+                "none: the constraints read the sensors as they are".to_string()
+            }
+            c => {
+                let estimates: Vec<String> = self
+                    .filter
+                    .estimates()
+                    .iter()
+                    .map(|e| format!("{} (while {})", e.sensor, self.switch_text(&e.partition)))
+                    .collect();
+                if estimates.is_empty() {
+                    format!("{}: no learned estimate", c.name())
+                } else {
+                    format!(
+                        "{}: learned estimates of {}",
+                        c.name(),
+                        estimates.join(", ")
+                    )
+                }
+            }
+        }
+    }
+
+    /// `VAR_INPUT`: every sensor, the proposed orders read (`req_in_body`: those
+    /// the body reads; the others only at the first scan), and the flags and
+    /// internal variables read.
+    fn write_inputs(&self, out: &mut String, req_in_body: &BTreeSet<String>) -> Result<(), String> {
+        let plant = self.plant;
+        out.push_str("VAR_INPUT\n");
+        for s in plant.signals.of_kind(SignalKind::Sensor) {
+            let s = plant.signals.get(s);
+            let _ = writeln!(
+                out,
+                "    {} : BOOL; (* {} *)",
+                self.id(&s.name)?,
+                comment_text(&s.description)
+            );
+        }
+        let req = self.req_used.borrow().clone();
+        for s in plant.signals.of_kind(SignalKind::Actuator) {
+            let s = plant.signals.get(s);
+            if req.contains(&s.name) {
+                let only_first = if req_in_body.contains(&s.name) {
+                    ""
+                } else {
+                    " (read at the first scan only)"
+                };
+                let _ = writeln!(
+                    out,
+                    "    {}_REQ : BOOL; (* proposed by the control program{only_first}: {} *)",
+                    stem(&s.name),
+                    comment_text(&s.description)
+                );
+            }
+        }
+        let read = self.read.borrow().clone();
+        for n in self.filter.names() {
+            if read.contains(n) {
+                let what = describe_input(plant, n);
+                let _ = writeln!(
+                    out,
+                    "    {} : BOOL; (* {} *)",
+                    self.id(n)?,
+                    comment_text(&what)
+                );
+            }
+        }
+        out.push_str("END_VAR\n");
+        Ok(())
+    }
+
+    /// `VAR_OUTPUT`: the orders, one `<constraint>_VIOLATED` per safety
+    /// constraint, `FALLBACK`, and the parts' `FALLBACK_<part>`.
+    fn write_outputs(&self, out: &mut String, facts: &BodyFacts) -> Result<(), String> {
+        let plant = self.plant;
+        out.push_str("VAR_OUTPUT\n");
+        for s in plant.signals.of_kind(SignalKind::Actuator) {
+            let s = plant.signals.get(s);
+            let _ = writeln!(
+                out,
+                "    {} : BOOL; (* {} *)",
+                self.id(&s.name)?,
+                comment_text(&s.description)
+            );
+        }
+        for (bit, name, expr) in &facts.violated {
+            let _ = writeln!(
+                out,
+                "    {bit} : BOOL; (* {} was 1 on the orders *)",
+                comment_text(&format!("{name} = {expr}"))
+            );
+        }
+        out.push_str(
+            "    FALLBACK : BOOL; (* a safety constraint was violated: every order took f1k *)\n",
+        );
+        for (bit, part) in &facts.part_bits {
+            let _ = writeln!(
+                out,
+                "    {bit} : BOOL; (* part {} is in its fallback: an actuator or element fault is flagged *)",
+                comment_text(part)
+            );
+        }
+        out.push_str("END_VAR\n");
+        Ok(())
+    }
+
+    /// `VAR`: the first scan's flag, the observers, the forced values kept in
+    /// variables, the clocks and intervals, and the previous values (`ordered`).
+    fn write_locals(
+        &self,
+        out: &mut String,
+        facts: &BodyFacts,
+        first_scan: bool,
+        ordered: &[&String],
+    ) -> Result<(), String> {
+        let plant = self.plant;
+        out.push_str("VAR\n");
+        if first_scan {
+            out.push_str("    FIRST_SCAN : BOOL := TRUE;\n");
+        }
+        for o in &plant.observers {
+            let init = if o.init { " := TRUE" } else { "" };
+            let _ = writeln!(
+                out,
+                "    {} : BOOL{init}; (* observer {} *)",
+                self.id(&o.name)?,
+                comment_text(&o.name)
+            );
+        }
+        for (id, output, f1) in &facts.forced_vars {
+            let what = if *f1 { "must be 1" } else { "must be 0" };
+            let _ = writeln!(
+                out,
+                "    {id} : BOOL; (* the safety constraints say {output} {what} *)"
+            );
+        }
+        self.write_clock_vars(out, facts)?;
+        for n in ordered {
+            let init = plant
+                .observers
+                .iter()
+                .find(|o| o.name == **n)
+                .is_some_and(|o| o.init);
+            let init = if init { " := TRUE" } else { "" };
+            let _ = writeln!(
+                out,
+                "    {}_PREV : BOOL{init}; (* {n} in the previous scan *)",
+                stem(n)
+            );
+        }
+        out.push_str("END_VAR\n");
+        Ok(())
+    }
+
+    /// Per clocked part: its timer (`TON`) if an interval reads the time, its
+    /// "started" flag if one reads it, and its intervals.
+    fn write_clock_vars(&self, out: &mut String, facts: &BodyFacts) -> Result<(), String> {
+        for c in self.clocks()? {
+            let pid = stem(&c.part);
+            if facts.timed.contains(&c.part) {
+                let _ = writeln!(
+                    out,
+                    "    {pid}_CLK : TON; (* time since the scan that wrote {}'s order, minus one scan *)",
+                    c.actuators.join(", ")
+                );
+            }
+            if facts.set_used.contains(&c.part) {
+                let _ = writeln!(
+                    out,
+                    "    {pid}_CLK_SET : BOOL; (* {} changed at least once *)",
+                    c.actuators.join(", ")
+                );
+            }
+            for (id, name, values, bounds) in &facts.intervals {
+                let belongs = c
+                    .intervals
+                    .states
+                    .iter()
+                    .any(|(_, iv)| iv.iter().any(|i| i.name == *name));
+                if belongs {
+                    let state: Vec<String> = c
+                        .actuators
+                        .iter()
+                        .zip(values)
+                        .map(|(a, v)| format!("{a} = {}", u8::from(*v)))
+                        .collect();
+                    let _ = writeln!(
+                        out,
+                        "    {id} : BOOL; (* {} {bounds} since {} *)",
+                        name,
+                        state.join(", ")
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// What a flag or variable input is, for its comment.
