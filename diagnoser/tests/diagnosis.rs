@@ -956,3 +956,136 @@ fn an_edge_out_of_its_window_is_timed_on_the_window_s_own_clock() {
         first.reason
     );
 }
+
+/// One case of `fixtures/engine/`: a fixture part, its initial values, events
+/// and end, what its final labels must hold, and the exact verdict lines.
+struct Case {
+    plant: String,
+    on: Vec<String>,
+    end: i64,
+    contains: Vec<String>,
+    excludes: Vec<String>,
+    events: Vec<(i64, String, bool)>,
+    verdicts: Vec<String>,
+    /// The text before `verdicts:`, kept when the lines are rewritten.
+    head: String,
+}
+
+/// Reads a case file. Lines: `key: value` (plant, on, end, contains,
+/// excludes), then `events:` and one `t signal value` per line (t in ms), then
+/// `verdicts:` and the expected JSON lines. `#` starts a comment line.
+fn parse_case(path: &Path) -> Case {
+    let text = std::fs::read_to_string(path).expect("case file");
+    let (head, verdicts) = text.split_once("verdicts:\n").unwrap_or((&text, ""));
+    let mut case = Case {
+        plant: String::new(),
+        on: Vec::new(),
+        end: 0,
+        contains: Vec::new(),
+        excludes: Vec::new(),
+        events: Vec::new(),
+        verdicts: verdicts.lines().map(str::to_string).collect(),
+        head: head.to_string(),
+    };
+    let mut in_events = false;
+    for (n, line) in head.lines().enumerate() {
+        let where_ = || format!("{}:{}", path.display(), n + 1);
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if line == "events:" {
+            in_events = true;
+            continue;
+        }
+        let words: Vec<String> = line.split_whitespace().map(str::to_string).collect();
+        if in_events {
+            let [t, signal, value] = &words[..] else {
+                panic!("{}: expected `t signal value`", where_());
+            };
+            let t = t.parse().unwrap_or_else(|_| panic!("{}: time", where_()));
+            case.events.push((t, signal.clone(), value == "1"));
+            continue;
+        }
+        let (key, rest) = line
+            .split_once(':')
+            .unwrap_or_else(|| panic!("{}", where_()));
+        let list: Vec<String> = rest.split_whitespace().map(str::to_string).collect();
+        match key {
+            "plant" => case.plant = rest.trim().to_string(),
+            "on" => case.on = list,
+            "end" => case.end = rest.trim().parse().expect("end"),
+            "contains" => case.contains = list,
+            "excludes" => case.excludes = list,
+            _ => panic!("{}: unknown key '{key}'", where_()),
+        }
+    }
+    case
+}
+
+/// Every case of `diagnoser/tests/fixtures/engine/` gives its verdict lines
+/// exactly, and its final labels hold what the case says. With
+/// `UPDATE_EXPECT=1`, the verdict lines are rewritten instead (the label
+/// checks still hold).
+#[test]
+fn engine_cases_give_their_verdict_lines() {
+    let dir = repo("diagnoser/tests/fixtures/engine");
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .expect("cases")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|x| x == "case"))
+        .collect();
+    paths.sort();
+    assert!(paths.len() >= 8, "{} cases", paths.len());
+    let update = std::env::var_os("UPDATE_EXPECT").is_some();
+    let mut failures = Vec::new();
+    for path in &paths {
+        let case = parse_case(path);
+        let on: Vec<&str> = case.on.iter().map(String::as_str).collect();
+        let events: Vec<(i64, &str, bool)> = case
+            .events
+            .iter()
+            .map(|(t, s, v)| (*t, s.as_str(), *v))
+            .collect();
+        let verdicts = fixture_verdicts(&case.plant, &|t| t, &|m| m, &on, &events, case.end);
+        let labels = verdicts
+            .iter()
+            .rev()
+            .find(|v| v.part == case.plant)
+            .map_or_else(|| vec!["N".to_string()], |v| v.labels.clone());
+        for l in &case.contains {
+            assert!(
+                labels.contains(l),
+                "{}: {labels:?} lacks {l}",
+                path.display()
+            );
+        }
+        for l in &case.excludes {
+            assert!(
+                !labels.contains(l),
+                "{}: {labels:?} has {l}",
+                path.display()
+            );
+        }
+        let lines: Vec<String> = verdicts
+            .iter()
+            .map(|v| v.json_line(diagnoser::TimeFormat::Numeric(TimeUnit::Ms), None))
+            .collect();
+        if update {
+            let text = format!("{}verdicts:\n{}\n", case.head, lines.join("\n"));
+            std::fs::write(path, text.trim_end().to_string() + "\n").expect("rewrite");
+        } else if lines != case.verdicts {
+            failures.push(format!(
+                "{}:\nexpected\n{}\ngot\n{}",
+                path.display(),
+                case.verdicts.join("\n"),
+                lines.join("\n")
+            ));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{}\n(rerun with UPDATE_EXPECT=1 to accept)",
+        failures.join("\n\n")
+    );
+}
