@@ -1260,28 +1260,8 @@ fn lay_out(g: &Graph) -> Result<Drawing, String> {
     let edge_looks: Vec<EdgeLook> = g.edges.iter().map(|e| EdgeLook::new(g, e)).collect();
     let n = looks.len();
     let labels: Vec<Option<(f64, f64)>> = edge_looks.iter().map(EdgeLook::label_size).collect();
-
-    // Self-loops hang on one side of their node, nested, their labels past
-    // them: the node is widened to hold their ends apart, and its slot in its
-    // rank makes room for them.
-    let mut loops: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for (i, e) in g.edges.iter().enumerate() {
-        if e.tail == e.head {
-            loops[e.tail].push(i);
-        }
-    }
-    let boxes: Vec<(f64, f64)> = looks
-        .iter()
-        .zip(&loops)
-        .map(|(look, list)| {
-            let (r, o) = flow.along(look.size());
-            let ends = list
-                .len()
-                .checked_sub(1)
-                .map_or(0.0, |i| 2.0 * loop_end(i) + 8.0);
-            (r.max(ends), o)
-        })
-        .collect();
+    let loops = self_loops(g, n);
+    let boxes = node_boxes(&looks, &loops, flow);
     let pairs: Vec<(usize, usize)> = g.edges.iter().map(|e| (e.tail, e.head)).collect();
     let back = back_edges(n, &pairs);
     let dag: Vec<(usize, usize)> = pairs
@@ -1291,8 +1271,99 @@ fn lay_out(g: &Graph) -> Result<Drawing, String> {
         .map(|(&(a, b), &rev)| if rev { (b, a) } else { (a, b) })
         .collect();
     let rank = rank_nodes(n, &dag);
+    let mut vertices = node_vertices(&boxes, &loops, &labels, &rank, flow);
+    let chains = edge_chains(&pairs, &back, &labels, &mut vertices, flow)?;
+    let (up, down, links) = chain_neighbours(&chains, &vertices);
+    let sweeps = (SWEEP_BUDGET / (vertices.len() + links).max(1)).clamp(2, MAX_SWEEPS);
+    let layers = order_layers(&vertices, &up, &down, sweeps);
+    let o = place_across(&layers, &vertices, &up, &down, sweeps);
+    let (extent, rank_at) = rank_positions(layers.len(), &vertices);
+    let placed = Placed {
+        flow,
+        directed: g.directed,
+        boxes,
+        vertices,
+        o,
+        extent,
+        rank_at,
+        labels,
+    };
+    let ports = placed.ports(&chains, n);
+    let nodes: Vec<NodeShape> = looks
+        .into_iter()
+        .enumerate()
+        .map(|(v, look)| placed.node(v, look))
+        .collect();
+    let mut routes: Vec<Option<Route>> = (0..g.edges.len()).map(|_| None).collect();
+    for (c, &port) in chains.iter().zip(&ports) {
+        routes[c.edge] = Some(placed.chain_route(c, port));
+    }
+    for (v, list) in loops.iter().enumerate() {
+        for (e, route) in placed.loop_routes(v, list) {
+            routes[e] = Some(route);
+        }
+    }
+    // Every edge is either a chain or a loop.
+    let edges = routes
+        .into_iter()
+        .zip(edge_looks)
+        .filter_map(|(route, look)| route.map(|route| EdgeShape { look, route }))
+        .collect();
+    let caption = g.attrs.get("label").map_or_else(Vec::new, |raw| {
+        label_lines(raw, |c| (c == 'G').then(|| g.name.clone()))
+    });
+    let title = label_lines(&g.name, |_| None).join(" ");
+    let mut drawing = Drawing {
+        title,
+        width: 0.0,
+        height: 0.0,
+        nodes,
+        edges,
+        caption,
+    };
+    drawing.fit();
+    Ok(drawing)
+}
 
-    let mut vertices: Vec<Vertex> = (0..n)
+/// Per node, its self-loops (edge numbers).
+fn self_loops(g: &Graph, n: usize) -> Vec<Vec<usize>> {
+    let mut loops: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (i, e) in g.edges.iter().enumerate() {
+        if e.tail == e.head {
+            loops[e.tail].push(i);
+        }
+    }
+    loops
+}
+
+/// Each node's box as (extent along the ranks, across them). Self-loops hang
+/// on one side of their node, nested, their labels past them: the node is
+/// widened to hold their ends apart.
+fn node_boxes(looks: &[NodeLook], loops: &[Vec<usize>], flow: Flow) -> Vec<(f64, f64)> {
+    looks
+        .iter()
+        .zip(loops)
+        .map(|(look, list)| {
+            let (r, o) = flow.along(look.size());
+            let ends = list
+                .len()
+                .checked_sub(1)
+                .map_or(0.0, |i| 2.0 * loop_end(i) + 8.0);
+            (r.max(ends), o)
+        })
+        .collect()
+}
+
+/// The nodes as vertices on even ranks, each slot across its rank making room
+/// for the node's self-loops and their labels.
+fn node_vertices(
+    boxes: &[(f64, f64)],
+    loops: &[Vec<usize>],
+    labels: &[Option<(f64, f64)>],
+    rank: &[usize],
+    flow: Flow,
+) -> Vec<Vertex> {
+    (0..boxes.len())
         .map(|v| {
             let (br, bo) = boxes[v];
             let (mut size_r, mut size_o) = (br, bo);
@@ -1313,10 +1384,21 @@ fn lay_out(g: &Graph) -> Result<Drawing, String> {
                 dummy: false,
             }
         })
-        .collect();
+        .collect()
+}
 
-    // Ranks are doubled: nodes sit on even ranks, edge labels on odd ones, so
-    // labels get room of their own and never cover a node.
+/// Each edge between two nodes as a chain of vertices, one per rank it
+/// crosses (`vertices` gains them). Ranks are doubled: nodes sit on even
+/// ranks, edge labels on odd ones, so labels get room of their own and never
+/// cover a node.
+fn edge_chains(
+    pairs: &[(usize, usize)],
+    back: &[bool],
+    labels: &[Option<(f64, f64)>],
+    vertices: &mut Vec<Vertex>,
+    flow: Flow,
+) -> Result<Vec<Chain>, String> {
+    let n = vertices.len();
     let mut chains = Vec::new();
     for (i, &(tail, head)) in pairs.iter().enumerate() {
         if tail == head {
@@ -1357,14 +1439,21 @@ fn lay_out(g: &Graph) -> Result<Drawing, String> {
             label,
         });
     }
+    Ok(chains)
+}
 
-    // Neighbours in the rank above and below, weighted so that long edges
-    // (chains of bends) pull hardest towards straight lines.
+/// Per vertex, its neighbours in one direction, each with its link's weight.
+type Neighbours = Vec<Vec<(usize, f64)>>;
+
+/// Each vertex's neighbours in the rank above and below, weighted so that
+/// long edges (chains of bends) pull hardest towards straight lines, and how
+/// many links there are.
+fn chain_neighbours(chains: &[Chain], vertices: &[Vertex]) -> (Neighbours, Neighbours, usize) {
     let count = vertices.len();
-    let mut up: Vec<Vec<(usize, f64)>> = vec![Vec::new(); count];
-    let mut down: Vec<Vec<(usize, f64)>> = vec![Vec::new(); count];
+    let mut up: Neighbours = vec![Vec::new(); count];
+    let mut down: Neighbours = vec![Vec::new(); count];
     let mut links = 0;
-    for c in &chains {
+    for c in chains {
         for w in c.vertices.windows(2) {
             let weight = match (vertices[w[0]].dummy, vertices[w[1]].dummy) {
                 (false, false) => 1.0,
@@ -1376,85 +1465,115 @@ fn lay_out(g: &Graph) -> Result<Drawing, String> {
             links += 1;
         }
     }
-    let sweeps = (SWEEP_BUDGET / (count + links).max(1)).clamp(2, MAX_SWEEPS);
+    (up, down, links)
+}
 
-    let layers = order_layers(&vertices, &up, &down, sweeps);
-    let o = place_across(&layers, &vertices, &up, &down, sweeps);
-
-    // Rank positions along the flow.
-    let mut extent = vec![0.0f64; layers.len()];
-    for v in &vertices {
+/// Each rank's extent along the flow, and its position.
+fn rank_positions(ranks: usize, vertices: &[Vertex]) -> (Vec<f64>, Vec<f64>) {
+    let mut extent = vec![0.0f64; ranks];
+    for v in vertices {
         extent[v.rank] = extent[v.rank].max(v.size_r);
     }
-    let mut rank_at = vec![0.0f64; layers.len()];
-    for r in 1..layers.len() {
+    let mut rank_at = vec![0.0f64; ranks];
+    for r in 1..ranks {
         rank_at[r] = rank_at[r - 1] + extent[r - 1] / 2.0 + RANK_GAP + extent[r] / 2.0;
     }
+    (extent, rank_at)
+}
 
-    // Node boxes sit at the start of their slot across the rank, loops after.
-    let centre_o = |v: usize| o[v] - vertices[v].size_o / 2.0 + boxes[v].1 / 2.0;
+/// Vertices placed in (rank, order) coordinates: what routes are drawn from.
+struct Placed {
+    flow: Flow,
+    directed: bool,
+    /// Each node's box (along, across).
+    boxes: Vec<(f64, f64)>,
+    vertices: Vec<Vertex>,
+    /// Each vertex's position across the ranks.
+    o: Vec<f64>,
+    /// Each rank's extent along the flow.
+    extent: Vec<f64>,
+    /// Each rank's position along the flow.
+    rank_at: Vec<f64>,
+    /// Each edge's label size, if it has a label.
+    labels: Vec<Option<(f64, f64)>>,
+}
 
-    // Ports: the edges leaving one side of a node spread along it in the
-    // order of where they go, so parallel edges fan out instead of stacking.
-    let mut sides: Vec<[Vec<(f64, usize)>; 2]> = vec![[Vec::new(), Vec::new()]; n];
-    for (ci, c) in chains.iter().enumerate() {
-        let k = c.vertices.len();
-        sides[c.vertices[0]][1].push((o[c.vertices[1]], ci));
-        sides[c.vertices[k - 1]][0].push((o[c.vertices[k - 2]], ci));
+impl Placed {
+    /// Where node `v`'s box is centred across its rank: at the start of its
+    /// slot, its self-loops after it.
+    fn centre_o(&self, v: usize) -> f64 {
+        self.o[v] - self.vertices[v].size_o / 2.0 + self.boxes[v].1 / 2.0
     }
-    let mut ports = vec![(0.0, 0.0); chains.len()];
-    for (v, [before, after]) in sides.iter_mut().enumerate() {
-        let (lo, span) = (centre_o(v) - boxes[v].1 / 2.0, boxes[v].1);
-        for (side, list) in [(0, before), (1, after)] {
-            list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            let k = list.len() as f64;
-            for (i, &(_, ci)) in list.iter().enumerate() {
-                let at = lo + span * (i as f64 + 1.0) / (k + 1.0);
-                if side == 1 {
-                    ports[ci].0 = at;
-                } else {
-                    ports[ci].1 = at;
-                }
-            }
+
+    /// Node `v`'s shape on the page.
+    fn node(&self, v: usize, look: NodeLook) -> NodeShape {
+        let (w, h) = self.flow.along(self.boxes[v]);
+        let c = self
+            .flow
+            .point(self.rank_at[self.vertices[v].rank], self.centre_o(v));
+        NodeShape {
+            look,
+            rect: Rect::centred(c, w, h),
         }
     }
 
-    let mut nodes: Vec<NodeShape> = Vec::with_capacity(n);
-    for (v, look) in looks.into_iter().enumerate() {
-        let (w, h) = flow.along(boxes[v]);
-        let c = flow.point(rank_at[vertices[v].rank], centre_o(v));
-        nodes.push(NodeShape {
-            look,
-            rect: Rect::centred(c, w, h),
-        });
+    /// Per chain, where it leaves its first node and enters its last: the
+    /// edges leaving one side of a node spread along it in the order of
+    /// where they go, so parallel edges fan out instead of stacking.
+    fn ports(&self, chains: &[Chain], n: usize) -> Vec<(f64, f64)> {
+        let mut sides: Vec<[Vec<(f64, usize)>; 2]> = vec![[Vec::new(), Vec::new()]; n];
+        for (ci, c) in chains.iter().enumerate() {
+            let k = c.vertices.len();
+            sides[c.vertices[0]][1].push((self.o[c.vertices[1]], ci));
+            sides[c.vertices[k - 1]][0].push((self.o[c.vertices[k - 2]], ci));
+        }
+        let mut ports = vec![(0.0, 0.0); chains.len()];
+        for (v, [before, after]) in sides.iter_mut().enumerate() {
+            let (lo, span) = (self.centre_o(v) - self.boxes[v].1 / 2.0, self.boxes[v].1);
+            for (side, list) in [(0, before), (1, after)] {
+                list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                let k = list.len() as f64;
+                for (i, &(_, ci)) in list.iter().enumerate() {
+                    let at = lo + span * (i as f64 + 1.0) / (k + 1.0);
+                    if side == 1 {
+                        ports[ci].0 = at;
+                    } else {
+                        ports[ci].1 = at;
+                    }
+                }
+            }
+        }
+        ports
     }
 
-    let mut routes: Vec<Option<Route>> = (0..g.edges.len()).map(|_| None).collect();
-    for (c, &(start_o, end_o)) in chains.iter().zip(&ports) {
+    /// Chain `c`'s route from port `start_o` to port `end_o`, straight
+    /// across each rank it crosses, with its arrowhead and label.
+    fn chain_route(&self, c: &Chain, (start_o, end_o): (f64, f64)) -> Route {
+        let (flow, vertices, rank_at) = (self.flow, &self.vertices, &self.rank_at);
         let k = c.vertices.len();
         let (a, b) = (c.vertices[0], c.vertices[k - 1]);
         let mut points = Vec::with_capacity(2 * k);
         push_point(
             &mut points,
-            (rank_at[vertices[a].rank] + boxes[a].0 / 2.0, start_o),
+            (rank_at[vertices[a].rank] + self.boxes[a].0 / 2.0, start_o),
         );
         for &d in &c.vertices[1..k - 1] {
             let r = vertices[d].rank;
-            let half = extent[r] / 2.0;
+            let half = self.extent[r] / 2.0;
             // Straight across the rank's column, clear of its boxes.
-            push_point(&mut points, (rank_at[r] - half, o[d]));
+            push_point(&mut points, (rank_at[r] - half, self.o[d]));
             if half > 0.0 {
-                push_point(&mut points, (rank_at[r] + half, o[d]));
+                push_point(&mut points, (rank_at[r] + half, self.o[d]));
             }
         }
         push_point(
             &mut points,
-            (rank_at[vertices[b].rank] - boxes[b].0 / 2.0, end_o),
+            (rank_at[vertices[b].rank] - self.boxes[b].0 / 2.0, end_o),
         );
         if c.reversed {
             points.reverse();
         }
-        let arrow = if g.directed {
+        let arrow = if self.directed {
             let tip = points[points.len() - 1];
             let before = points[points.len() - 2];
             let back = if before.0 < tip.0 { -ARROW } else { ARROW };
@@ -1473,73 +1592,57 @@ fn lay_out(g: &Graph) -> Result<Drawing, String> {
                 [flow.point(mid, o0), flow.point(mid, o1), flow.point(r1, o1)]
             })
             .collect();
-        let label = c
-            .label
-            .zip(labels[c.edge])
-            .map(|(d, (w, h))| Rect::centred(flow.point(rank_at[vertices[d].rank], o[d]), w, h));
-        routes[c.edge] = Some(Route {
+        let label = c.label.zip(self.labels[c.edge]).map(|(d, (w, h))| {
+            Rect::centred(flow.point(rank_at[vertices[d].rank], self.o[d]), w, h)
+        });
+        Route {
             start: flow.point(points[0].0, points[0].1),
             segments,
             arrow,
             label,
-        });
+        }
     }
-    for (v, list) in loops.iter().enumerate() {
-        let bo = boxes[v].1;
-        let cr = rank_at[vertices[v].rank];
-        let side = centre_o(v) + bo / 2.0;
+
+    /// The routes of node `v`'s self-loops `list`, nested on one side of it,
+    /// their labels past them.
+    fn loop_routes(&self, v: usize, list: &[usize]) -> Vec<(usize, Route)> {
+        let flow = self.flow;
+        let bo = self.boxes[v].1;
+        let cr = self.rank_at[self.vertices[v].rank];
+        let side = self.centre_o(v) + bo / 2.0;
         let mut next_label = side + list.len().checked_sub(1).map_or(0.0, loop_bulge) + 4.0;
+        let mut routes = Vec::with_capacity(list.len());
         for (i, &e) in list.iter().enumerate() {
             let a = loop_end(i);
             let reach = side + loop_bulge(i) * 4.0 / 3.0;
             let tip = (cr + a, side);
-            let end = if g.directed {
+            let end = if self.directed {
                 (cr + a, side + ARROW)
             } else {
                 tip
             };
-            let label = labels[e].map(|(w, h)| {
+            let label = self.labels[e].map(|(w, h)| {
                 let (_, lo) = flow.along((w, h));
                 let r = Rect::centred(flow.point(cr, next_label + lo / 2.0), w, h);
                 next_label += lo + 2.0;
                 r
             });
-            routes[e] = Some(Route {
+            let route = Route {
                 start: flow.point(cr - a, side),
                 segments: vec![[
                     flow.point(cr - 2.0 * a, reach),
                     flow.point(cr + 2.0 * a, reach),
                     flow.point(end.0, end.1),
                 ]],
-                arrow: g
+                arrow: self
                     .directed
                     .then(|| (flow.point(end.0, end.1), flow.point(tip.0, tip.1))),
                 label,
-            });
+            };
+            routes.push((e, route));
         }
+        routes
     }
-    let mut edges = Vec::with_capacity(g.edges.len());
-    for (route, look) in routes.into_iter().zip(edge_looks) {
-        // Every edge is either a chain or a loop.
-        if let Some(route) = route {
-            edges.push(EdgeShape { look, route });
-        }
-    }
-
-    let caption = g.attrs.get("label").map_or_else(Vec::new, |raw| {
-        label_lines(raw, |c| (c == 'G').then(|| g.name.clone()))
-    });
-    let title = label_lines(&g.name, |_| None).join(" ");
-    let mut drawing = Drawing {
-        title,
-        width: 0.0,
-        height: 0.0,
-        nodes,
-        edges,
-        caption,
-    };
-    drawing.fit();
-    Ok(drawing)
 }
 
 /// Appends a point to an edge's route; a straight run along the ranks needs
@@ -1936,155 +2039,171 @@ impl Drawing {
         let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
         // Edges first, so that nodes cover their ends.
         for (i, e) in self.edges.iter().enumerate() {
-            let look = &e.look;
-            let _ = writeln!(
-                s,
-                r#"<g class="edge" id="{p}edge{}"><title>{}</title>"#,
-                i + 1,
-                esc(&look.title)
-            );
-            let route = &e.route;
-            let mut d = format!("M{},{}", N(route.start.x), N(route.start.y));
-            let mut from = route.start;
-            for &[c1, c2, to] in &route.segments {
-                let straight = [c1, c2, to].iter().all(|p| p.x == from.x)
-                    || [c1, c2, to].iter().all(|p| p.y == from.y);
-                if straight {
-                    let _ = write!(d, "L{},{}", N(to.x), N(to.y));
-                } else {
-                    let _ = write!(
-                        d,
-                        "C{},{} {},{} {},{}",
-                        N(c1.x),
-                        N(c1.y),
-                        N(c2.x),
-                        N(c2.y),
-                        N(to.x),
-                        N(to.y)
-                    );
-                }
-                from = to;
-            }
-            let stroke = look.stroke.as_deref();
-            let width = if look.bold {
-                r#" stroke-width="2""#
-            } else {
-                ""
-            };
-            let dash = if look.dashed {
-                r#" stroke-dasharray="5,2""#
-            } else {
-                ""
-            };
-            let _ = writeln!(
-                s,
-                r#"<path{}{width}{dash} d="{d}"/>"#,
-                paint(("none", None), ("black", stroke))
-            );
-            if let Some((base, tip)) = route.arrow {
-                let (dx, dy) = (tip.x - base.x, tip.y - base.y);
-                let len = dx.hypot(dy).max(1e-9);
-                let (nx, ny) = (-dy / len * ARROW_HALF_WIDTH, dx / len * ARROW_HALF_WIDTH);
-                let _ = writeln!(
-                    s,
-                    r#"<polygon{}{width} points="{},{} {},{} {},{}"/>"#,
-                    paint(("black", stroke), ("black", stroke)),
-                    N(tip.x),
-                    N(tip.y),
-                    N(base.x + nx),
-                    N(base.y + ny),
-                    N(base.x - nx),
-                    N(base.y - ny)
-                );
-            }
-            if let Some(r) = &route.label {
-                let _ = writeln!(
-                    s,
-                    r#"<rect x="{}" y="{}" width="{}" height="{}" fill="white"/>"#,
-                    N(r.x),
-                    N(r.y),
-                    N(r.w),
-                    N(r.h)
-                );
-                let centre = P {
-                    x: r.x + r.w / 2.0,
-                    y: r.y + r.h / 2.0,
-                };
-                text_lines(&mut s, centre, &look.lines, look.font.as_deref());
-            }
-            s.push_str("</g>\n");
+            edge_svg(&mut s, &p, i, e);
         }
         for (i, node) in self.nodes.iter().enumerate() {
-            let look = &node.look;
-            let _ = writeln!(
-                s,
-                r#"<g class="node" id="{p}node{}"><title>{}</title>"#,
-                i + 1,
-                esc(&look.name)
-            );
-            let r = node.rect;
-            let stroke = look.stroke.as_deref();
-            let width = if look.bold {
-                r#" stroke-width="2""#
-            } else {
-                ""
-            };
-            let dash = if look.dashed {
-                r#" stroke-dasharray="5,2""#
-            } else {
-                ""
-            };
-            let round = if look.rounded { r#" rx="5""# } else { "" };
-            let mut rects = vec![(r, ("white", None))];
-            if look.double {
-                let g = PERIPHERY_GAP;
-                rects.push((
-                    Rect {
-                        x: r.x + g,
-                        y: r.y + g,
-                        w: r.w - 2.0 * g,
-                        h: r.h - 2.0 * g,
-                    },
-                    ("white", look.fill.as_deref()),
-                ));
-            } else {
-                rects[0].1 = ("white", look.fill.as_deref());
-            }
-            for (b, fill) in rects {
-                let _ = writeln!(
-                    s,
-                    r#"<rect x="{}" y="{}" width="{}" height="{}"{round}{}{width}{dash}/>"#,
-                    N(b.x),
-                    N(b.y),
-                    N(b.w),
-                    N(b.h),
-                    paint(fill, ("black", stroke))
-                );
-            }
-            let centre = P {
-                x: r.x + r.w / 2.0,
-                y: r.y + r.h / 2.0,
-            };
-            text_lines(&mut s, centre, &look.lines, look.font.as_deref());
-            s.push_str("</g>\n");
+            node_svg(&mut s, &p, i, node);
         }
         if !self.caption.is_empty() {
-            let (_, ch) = text_size(&self.caption, CAPTION_CHAR_W, CAPTION_LINE_H);
-            let top = self.height - MARGIN - ch;
-            for (i, line) in self.caption.iter().enumerate() {
-                let _ = writeln!(
-                    s,
-                    r#"<text class="caption" x="{}" y="{}" text-anchor="middle" font-size="{}">{}</text>"#,
-                    N(self.width / 2.0),
-                    N(top + i as f64 * CAPTION_LINE_H + CAPTION_LINE_H * 0.8),
-                    N(CAPTION_SIZE),
-                    esc(line)
-                );
-            }
+            self.caption_svg(&mut s);
         }
         s.push_str("</g>\n</svg>\n");
         s
     }
+
+    /// The caption under the graph, one centred `<text>` per line.
+    fn caption_svg(&self, s: &mut String) {
+        let (_, ch) = text_size(&self.caption, CAPTION_CHAR_W, CAPTION_LINE_H);
+        let top = self.height - MARGIN - ch;
+        for (i, line) in self.caption.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                r#"<text class="caption" x="{}" y="{}" text-anchor="middle" font-size="{}">{}</text>"#,
+                N(self.width / 2.0),
+                N(top + i as f64 * CAPTION_LINE_H + CAPTION_LINE_H * 0.8),
+                N(CAPTION_SIZE),
+                esc(line)
+            );
+        }
+    }
+}
+
+/// Edge number `i` as an SVG group: its path, arrowhead and label.
+fn edge_svg(s: &mut String, p: &str, i: usize, e: &EdgeShape) {
+    let look = &e.look;
+    let _ = writeln!(
+        s,
+        r#"<g class="edge" id="{p}edge{}"><title>{}</title>"#,
+        i + 1,
+        esc(&look.title)
+    );
+    let route = &e.route;
+    let d = path_data(route);
+    let stroke = look.stroke.as_deref();
+    let (width, dash) = line_style(look.bold, look.dashed);
+    let _ = writeln!(
+        s,
+        r#"<path{}{width}{dash} d="{d}"/>"#,
+        paint(("none", None), ("black", stroke))
+    );
+    if let Some((base, tip)) = route.arrow {
+        let (dx, dy) = (tip.x - base.x, tip.y - base.y);
+        let len = dx.hypot(dy).max(1e-9);
+        let (nx, ny) = (-dy / len * ARROW_HALF_WIDTH, dx / len * ARROW_HALF_WIDTH);
+        let _ = writeln!(
+            s,
+            r#"<polygon{}{width} points="{},{} {},{} {},{}"/>"#,
+            paint(("black", stroke), ("black", stroke)),
+            N(tip.x),
+            N(tip.y),
+            N(base.x + nx),
+            N(base.y + ny),
+            N(base.x - nx),
+            N(base.y - ny)
+        );
+    }
+    if let Some(r) = &route.label {
+        let _ = writeln!(
+            s,
+            r#"<rect x="{}" y="{}" width="{}" height="{}" fill="white"/>"#,
+            N(r.x),
+            N(r.y),
+            N(r.w),
+            N(r.h)
+        );
+        let centre = P {
+            x: r.x + r.w / 2.0,
+            y: r.y + r.h / 2.0,
+        };
+        text_lines(s, centre, &look.lines, look.font.as_deref());
+    }
+    s.push_str("</g>\n");
+}
+
+/// An edge's route as SVG path data: straight lines where a segment is
+/// straight, cubic Béziers elsewhere.
+fn path_data(route: &Route) -> String {
+    let mut d = format!("M{},{}", N(route.start.x), N(route.start.y));
+    let mut from = route.start;
+    for &[c1, c2, to] in &route.segments {
+        let straight = [c1, c2, to].iter().all(|p| p.x == from.x)
+            || [c1, c2, to].iter().all(|p| p.y == from.y);
+        if straight {
+            let _ = write!(d, "L{},{}", N(to.x), N(to.y));
+        } else {
+            let _ = write!(
+                d,
+                "C{},{} {},{} {},{}",
+                N(c1.x),
+                N(c1.y),
+                N(c2.x),
+                N(c2.y),
+                N(to.x),
+                N(to.y)
+            );
+        }
+        from = to;
+    }
+    d
+}
+
+/// SVG attributes of a bold and of a dashed line (empty when not).
+fn line_style(bold: bool, dashed: bool) -> (&'static str, &'static str) {
+    let width = if bold { r#" stroke-width="2""# } else { "" };
+    let dash = if dashed {
+        r#" stroke-dasharray="5,2""#
+    } else {
+        ""
+    };
+    (width, dash)
+}
+
+/// Node number `i` as an SVG group: its box (two for a double periphery) and
+/// its text.
+fn node_svg(s: &mut String, p: &str, i: usize, node: &NodeShape) {
+    let look = &node.look;
+    let _ = writeln!(
+        s,
+        r#"<g class="node" id="{p}node{}"><title>{}</title>"#,
+        i + 1,
+        esc(&look.name)
+    );
+    let r = node.rect;
+    let stroke = look.stroke.as_deref();
+    let (width, dash) = line_style(look.bold, look.dashed);
+    let round = if look.rounded { r#" rx="5""# } else { "" };
+    let mut rects = vec![(r, ("white", None))];
+    if look.double {
+        let g = PERIPHERY_GAP;
+        rects.push((
+            Rect {
+                x: r.x + g,
+                y: r.y + g,
+                w: r.w - 2.0 * g,
+                h: r.h - 2.0 * g,
+            },
+            ("white", look.fill.as_deref()),
+        ));
+    } else {
+        rects[0].1 = ("white", look.fill.as_deref());
+    }
+    for (b, fill) in rects {
+        let _ = writeln!(
+            s,
+            r#"<rect x="{}" y="{}" width="{}" height="{}"{round}{}{width}{dash}/>"#,
+            N(b.x),
+            N(b.y),
+            N(b.w),
+            N(b.h),
+            paint(fill, ("black", stroke))
+        );
+    }
+    let centre = P {
+        x: r.x + r.w / 2.0,
+        y: r.y + r.h / 2.0,
+    };
+    text_lines(s, centre, &look.lines, look.font.as_deref());
+    s.push_str("</g>\n");
 }
 
 /// Text lines centred on `centre`, one `<text>` each.
