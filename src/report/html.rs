@@ -10,11 +10,12 @@ use std::path::Path;
 use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::{Model, PartModel};
+use diagnoser::plant::{Constraint, Part};
 use diagnoser::{Plant, SignalKind, Time, TimeFormat};
 use filter_coupling::filter::Coupling;
 use serde_json::{Value, json};
 
-use super::collect::{Change, Detection, LogReplay, Trip};
+use super::collect::{Change, Detection, LogReplay, Trip, TripDetail};
 use super::pictures::{self, Layout, Picture};
 use super::words::{
     absolute, description, duration, edge, escape, fault_meaning, filter_action, highlight,
@@ -175,9 +176,29 @@ fn plant_line(r: &LogReplay) -> String {
 
 /// The section of one log; returns its timeline data.
 fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
-    let plant = p.plant;
+    log_header(h, r, i);
+    summary_table(h, p.plant, r, i);
+    let _ = writeln!(
+        h,
+        "<div class=\"timeline-toolbar\" data-log=\"{i}\"><button type=\"button\" data-action=\"fit\" title=\"whole log\">fit</button><button type=\"button\" data-action=\"in\" title=\"zoom in\">+</button><button type=\"button\" data-action=\"out\" title=\"zoom out\">−</button><button type=\"button\" data-action=\"left\" title=\"earlier\">◀</button><button type=\"button\" data-action=\"right\" title=\"later\">▶</button><span class=\"range\"></span><span class=\"hint\">wheel: zoom · drag: pan · double-click: whole log</span></div>\n<noscript><p class=\"warning\">The timelines are drawn by the page's script: allow scripts to see them.</p></noscript>"
+    );
+    let (detection_ids, trip_ids) = explanation_ids(r, i);
+    let parts_data: Vec<Value> = p
+        .plant
+        .parts
+        .iter()
+        .enumerate()
+        .map(|(pi, part)| part_section(h, p, r, i, pi, part, &detection_ids))
+        .collect();
+    // The safety filter.
+    filter_section(h, p, r, i, &trip_ids);
+    h.push_str("</section>\n");
+    log_data(r, i, parts_data, &trip_ids)
+}
+
+/// The log's heading: its name, span and events, and the whole plant's view.
+fn log_header(h: &mut String, r: &LogReplay, i: usize) {
     let at = |t: Time| absolute(r.time, t);
-    let rel = |t: Time| offset(t - r.start);
     let _ = writeln!(
         h,
         "<section class=\"log\" id=\"log-{i}\" data-log=\"{i}\">\n<h2>{}</h2>\n<p class=\"meta\">From {} to {} ({}), {} events.</p>",
@@ -203,7 +224,13 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
             v = VerdictKind::name(view.verdict),
         );
     }
-    // Summary table.
+}
+
+/// The table of every part's final verdict, flags, first detection and
+/// meaning.
+fn summary_table(h: &mut String, plant: &Plant, r: &LogReplay, i: usize) {
+    let at = |t: Time| absolute(r.time, t);
+    let rel = |t: Time| offset(t - r.start);
     h.push_str(
         "<table class=\"summary\">\n<thead><tr><th>part</th><th>verdict</th><th>labels</th><th>flags</th><th>first detection</th><th>meaning</th></tr></thead>\n<tbody>\n",
     );
@@ -243,12 +270,12 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
         );
     }
     h.push_str("</tbody></table>\n");
-    let _ = writeln!(
-        h,
-        "<div class=\"timeline-toolbar\" data-log=\"{i}\"><button type=\"button\" data-action=\"fit\" title=\"whole log\">fit</button><button type=\"button\" data-action=\"in\" title=\"zoom in\">+</button><button type=\"button\" data-action=\"out\" title=\"zoom out\">−</button><button type=\"button\" data-action=\"left\" title=\"earlier\">◀</button><button type=\"button\" data-action=\"right\" title=\"later\">▶</button><span class=\"range\"></span><span class=\"hint\">wheel: zoom · drag: pan · double-click: whole log</span></div>\n<noscript><p class=\"warning\">The timelines are drawn by the page's script: allow scripts to see them.</p></noscript>"
-    );
-    // Explanation ids, for links from the timeline data.
-    // Detection k is `x{i}-{k}`; explained trips are numbered after them.
+    h.push_str("</tbody></table>\n");
+}
+
+/// Explanation ids, for links from the timeline data: detection k is
+/// `x{i}-{k}`; explained trips are numbered after them.
+fn explanation_ids(r: &LogReplay, i: usize) -> (Vec<String>, Vec<Option<String>>) {
     let detection_ids: Vec<String> = (0..r.detections.len())
         .map(|k| format!("x{i}-{k}"))
         .collect();
@@ -263,141 +290,179 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
             })
         })
         .collect();
-    let mut parts_data = Vec::new();
+    (detection_ids, trip_ids)
+}
+
+/// Part `pi`'s section: its verdict and meaning, timeline, verdict changes and
+/// explanations. Returns its timeline data.
+fn part_section(
+    h: &mut String,
+    p: &Page<'_>,
+    r: &LogReplay,
+    i: usize,
+    pi: usize,
+    part: &Part,
+    detection_ids: &[String],
+) -> Value {
+    let plant = p.plant;
     let tick = r.tick;
-    for (pi, part) in plant.parts.iter().enumerate() {
-        let s = r.summary.get(pi);
-        let pm = p.model.parts.iter().find(|m| m.name == part.name);
-        let _ = writeln!(
-            h,
-            "<section class=\"part\" id=\"log-{i}-{name}\" data-part=\"{name}\" data-log=\"{i}\">\n<h3>{name} <span class=\"chip verdict-{v}\">{v}</span> <span class=\"part-labels\">{labels}</span>{flags}</h3>",
-            name = escape(&part.name),
-            v = s.map_or("normal", |s| VerdictKind::name(s.verdict)),
-            labels = escape(&s.map_or(String::new(), |s| s.labels.join(" "))),
-            flags = s
-                .filter(|s| !s.flags.is_empty())
-                .map_or(String::new(), |s| format!(
-                    " <span class=\"part-flags\">{}</span>",
-                    escape(&s.flags.join(" "))
-                )),
-        );
-        if let Some(s) = s.filter(|s| s.verdict != VerdictKind::Normal) {
-            h.push_str("<ul class=\"meaning\">");
-            for l in &s.labels {
-                let _ = write!(
-                    h,
-                    "<li><strong>{}</strong>: {}</li>",
-                    escape(l),
-                    escape(&fault_meaning(plant, l))
-                );
-            }
-            h.push_str("</ul>\n");
-        }
-        let _ = writeln!(
-            h,
-            "<div class=\"timeline-host\" data-log=\"{i}\" data-part=\"{}\"></div>",
-            escape(&part.name)
-        );
-        // Verdict changes.
-        let verdicts: Vec<&Verdict> = r.verdicts.iter().filter(|v| v.part == part.name).collect();
-        let mut verdicts_data = Vec::new();
-        if verdicts.is_empty() {
-            h.push_str("<p class=\"quiet\">No verdict change: the part behaved as learned all along.</p>\n");
-        } else {
-            h.push_str("<table class=\"verdicts\"><thead><tr><th>time</th><th>verdict</th><th>labels</th><th>flags</th><th>why</th></tr></thead><tbody>\n");
-            for v in &verdicts {
-                let explanation = r
-                    .detections
-                    .iter()
-                    .position(|d| {
-                        d.part == pi
-                            && d.verdict.t == v.t
-                            && d.verdict.labels == v.labels
-                            && d.verdict.verdict == v.verdict
-                    })
-                    .map(|k| detection_ids[k].clone());
-                let _ = writeln!(
-                    h,
-                    "<tr class=\"verdict-{vk}\" data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\"><td>{} <span class=\"rel\">{}</span></td><td><span class=\"chip verdict-{vk}\">{vk}</span></td><td>{}</td><td>{}</td><td>{}{}</td></tr>",
-                    escape(&at(v.t)),
-                    rel(v.t),
-                    escape(&v.labels.join(" ")),
-                    escape(&v.flags.join(" ")),
-                    escape(&v.reason),
-                    explanation.as_ref().map_or(String::new(), |id| format!(
-                        " <a href=\"#{id}\">explanation</a>"
-                    )),
-                    vk = VerdictKind::name(v.verdict),
-                    tk = tick_of(r, v.t),
-                );
-                verdicts_data.push(json!({
-                    "t": tick_of(r, v.t),
-                    "verdict": VerdictKind::name(v.verdict),
-                    "labels": v.labels,
-                    "flags": v.flags,
-                    "reason": v.reason,
-                    "explanation": explanation,
-                }));
-            }
-            h.push_str("</tbody></table>\n");
-        }
-        // Explanations of its detections.
-        for (k, d) in r
-            .detections
-            .iter()
-            .enumerate()
-            .filter(|(_, d)| d.part == pi)
-        {
-            detection_article(h, p, r, i, &detection_ids[k], d, pm);
-        }
-        // Signals and windows for the timeline.
-        let signals = signal_names(plant, part, pm);
-        let signals_data: Vec<Value> = signals
-            .iter()
-            .filter_map(|name| {
-                let id = plant.signals.id(name)?;
-                let sig = plant.signals.get(id);
-                let mut prev = r.start;
-                let edges: Vec<i64> = r.edges[id.index()]
-                    .iter()
-                    .map(|&t| {
-                        let d = (t - prev) / tick;
-                        prev += d * tick;
-                        d
-                    })
-                    .collect();
-                Some(json!({
-                    "name": name,
-                    "kind": if sig.kind == SignalKind::Actuator { "actuator" } else { "sensor" },
-                    "description": sig.description,
-                    "init": u8::from(r.initial.get(id.index()).copied().unwrap_or(false)),
-                    "edges": edges,
-                }))
-            })
-            .collect();
-        parts_data.push(json!({
-            "name": part.name,
-            "verdict": s.map_or("normal", |s| VerdictKind::name(s.verdict)),
-            "labels": s.map(|s| s.labels.clone()).unwrap_or_default(),
-            "flags": s.map(|s| s.flags.clone()).unwrap_or_default(),
-            "detected": s.and_then(|s| s.detected).map(|t| tick_of(r, t)),
-            "signals": signals_data,
-            "windows": pm.map_or(json!({}), |pm| windows(p.model, pm, tick)),
-            "verdicts": verdicts_data,
-        }));
-        if !p.pictures.is_empty() {
-            let _ = writeln!(
+    let s = r.summary.get(pi);
+    let pm = p.model.parts.iter().find(|m| m.name == part.name);
+    let _ = writeln!(
+        h,
+        "<section class=\"part\" id=\"log-{i}-{name}\" data-part=\"{name}\" data-log=\"{i}\">\n<h3>{name} <span class=\"chip verdict-{v}\">{v}</span> <span class=\"part-labels\">{labels}</span>{flags}</h3>",
+        name = escape(&part.name),
+        v = s.map_or("normal", |s| VerdictKind::name(s.verdict)),
+        labels = escape(&s.map_or(String::new(), |s| s.labels.join(" "))),
+        flags = s
+            .filter(|s| !s.flags.is_empty())
+            .map_or(String::new(), |s| format!(
+                " <span class=\"part-flags\">{}</span>",
+                escape(&s.flags.join(" "))
+            )),
+    );
+    if let Some(s) = s.filter(|s| s.verdict != VerdictKind::Normal) {
+        h.push_str("<ul class=\"meaning\">");
+        for l in &s.labels {
+            let _ = write!(
                 h,
-                "<p class=\"models-link\"><a href=\"#models-{}\">Learned model and diagnoser of {}</a></p>",
-                escape(&part.name),
-                escape(&part.name)
+                "<li><strong>{}</strong>: {}</li>",
+                escape(l),
+                escape(&fault_meaning(plant, l))
             );
         }
-        h.push_str("</section>\n");
+        h.push_str("</ul>\n");
     }
-    // The safety filter.
-    filter_section(h, p, r, i, &trip_ids);
+    let _ = writeln!(
+        h,
+        "<div class=\"timeline-host\" data-log=\"{i}\" data-part=\"{}\"></div>",
+        escape(&part.name)
+    );
+    let verdicts_data = verdicts_table(h, r, i, pi, &part.name, detection_ids);
+    // Explanations of its detections.
+    for (k, d) in r
+        .detections
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.part == pi)
+    {
+        detection_article(h, p, r, i, &detection_ids[k], d, pm);
+    }
+    let signals_data = signals_data(plant, r, part, pm);
+    let data = json!({
+        "name": part.name,
+        "verdict": s.map_or("normal", |s| VerdictKind::name(s.verdict)),
+        "labels": s.map(|s| s.labels.clone()).unwrap_or_default(),
+        "flags": s.map(|s| s.flags.clone()).unwrap_or_default(),
+        "detected": s.and_then(|s| s.detected).map(|t| tick_of(r, t)),
+        "signals": signals_data,
+        "windows": pm.map_or(json!({}), |pm| windows(p.model, pm, tick)),
+        "verdicts": verdicts_data,
+    });
+    if !p.pictures.is_empty() {
+        let _ = writeln!(
+            h,
+            "<p class=\"models-link\"><a href=\"#models-{}\">Learned model and diagnoser of {}</a></p>",
+            escape(&part.name),
+            escape(&part.name)
+        );
+    }
     h.push_str("</section>\n");
+    data
+}
+
+/// The part's verdict changes as a table; returns them as timeline data.
+fn verdicts_table(
+    h: &mut String,
+    r: &LogReplay,
+    i: usize,
+    pi: usize,
+    part: &str,
+    detection_ids: &[String],
+) -> Vec<Value> {
+    let at = |t: Time| absolute(r.time, t);
+    let rel = |t: Time| offset(t - r.start);
+    // Verdict changes.
+    let verdicts: Vec<&Verdict> = r.verdicts.iter().filter(|v| v.part == part).collect();
+    let mut verdicts_data = Vec::new();
+    if verdicts.is_empty() {
+        h.push_str(
+            "<p class=\"quiet\">No verdict change: the part behaved as learned all along.</p>\n",
+        );
+    } else {
+        h.push_str("<table class=\"verdicts\"><thead><tr><th>time</th><th>verdict</th><th>labels</th><th>flags</th><th>why</th></tr></thead><tbody>\n");
+        for v in &verdicts {
+            let explanation = r
+                .detections
+                .iter()
+                .position(|d| {
+                    d.part == pi
+                        && d.verdict.t == v.t
+                        && d.verdict.labels == v.labels
+                        && d.verdict.verdict == v.verdict
+                })
+                .map(|k| detection_ids[k].clone());
+            let _ = writeln!(
+                h,
+                "<tr class=\"verdict-{vk}\" data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\"><td>{} <span class=\"rel\">{}</span></td><td><span class=\"chip verdict-{vk}\">{vk}</span></td><td>{}</td><td>{}</td><td>{}{}</td></tr>",
+                escape(&at(v.t)),
+                rel(v.t),
+                escape(&v.labels.join(" ")),
+                escape(&v.flags.join(" ")),
+                escape(&v.reason),
+                explanation.as_ref().map_or(String::new(), |id| format!(
+                    " <a href=\"#{id}\">explanation</a>"
+                )),
+                vk = VerdictKind::name(v.verdict),
+                tk = tick_of(r, v.t),
+            );
+            verdicts_data.push(json!({
+                "t": tick_of(r, v.t),
+                "verdict": VerdictKind::name(v.verdict),
+                "labels": v.labels,
+                "flags": v.flags,
+                "reason": v.reason,
+                "explanation": explanation,
+            }));
+        }
+        h.push_str("</tbody></table>\n");
+    }
+    verdicts_data
+}
+
+/// The part's signals with their edges (in ticks since the previous edge),
+/// for the timeline.
+fn signals_data(plant: &Plant, r: &LogReplay, part: &Part, pm: Option<&PartModel>) -> Vec<Value> {
+    let tick = r.tick;
+    let signals = signal_names(plant, part, pm);
+    signals
+        .iter()
+        .filter_map(|name| {
+            let id = plant.signals.id(name)?;
+            let sig = plant.signals.get(id);
+            let mut prev = r.start;
+            let edges: Vec<i64> = r.edges[id.index()]
+                .iter()
+                .map(|&t| {
+                    let d = (t - prev) / tick;
+                    prev += d * tick;
+                    d
+                })
+                .collect();
+            Some(json!({
+                "name": name,
+                "kind": if sig.kind == SignalKind::Actuator { "actuator" } else { "sensor" },
+                "description": sig.description,
+                "init": u8::from(r.initial.get(id.index()).copied().unwrap_or(false)),
+                "edges": edges,
+            }))
+        })
+        .collect()
+}
+
+/// The log's timeline data: its time form, parts, trips and rewrites.
+fn log_data(r: &LogReplay, i: usize, parts_data: Vec<Value>, trip_ids: &[Option<String>]) -> Value {
+    let tick = r.tick;
     let time = match r.time {
         TimeFormat::Numeric(unit) => json!({
             "kind": "numeric",
@@ -418,7 +483,7 @@ fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
         "time": time,
         "parts": parts_data,
         "filter": {
-            "trips": r.trips.iter().zip(&trip_ids).map(|(t, id)| json!({
+            "trips": r.trips.iter().zip(trip_ids).map(|(t, id)| json!({
                 "t": tick_of(r, t.t),
                 "constraint": t.constraint,
                 "literals": t.literals,
@@ -822,26 +887,8 @@ fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str
         return;
     };
     let written = plant.constraints.iter().find(|c| c.name == t.constraint);
-    let mut read: Vec<String> = written
-        .map(|c| c.expr.names().into_iter().map(str::to_string).collect())
-        .unwrap_or_default();
-    read.sort();
-    read.dedup();
-    let signals: Vec<String> = read
-        .iter()
-        .filter(|n| plant.signals.id(n).is_some())
-        .cloned()
-        .collect();
-    let literal_names: Vec<String> = t
-        .literals
-        .iter()
-        .map(|l| {
-            let l = l.trim_start_matches('!');
-            l.split_once('(')
-                .map_or(l, |(_, rest)| rest.trim_end_matches(')'))
-                .to_string()
-        })
-        .collect();
+    let signals = constraint_signals(plant, written);
+    let literal_names = literal_names(&t.literals);
     let _ = writeln!(
         h,
         "<article class=\"explanation trip\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{}\">{} held at {} <span class=\"rel\">{}</span></h4>\n<p class=\"constraint\"><code>{}</code></p>",
@@ -866,28 +913,7 @@ fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str
         .iter()
         .filter_map(|l| filter_action(plant, l))
         .collect();
-    // The current state is the one after the filter acted: each order the
-    // constraint forbids is put back to its safe value.
-    let mut after = detail.now.clone();
-    for l in &t.literals {
-        let (negated, body) = l
-            .strip_prefix('!')
-            .map_or((false, l.as_str()), |b| (true, b));
-        let (name, safe) =
-            if let Some(a) = body.strip_prefix("RE(").and_then(|b| b.strip_suffix(')')) {
-                (a, false)
-            } else if let Some(a) = body.strip_prefix("FE(").and_then(|b| b.strip_suffix(')')) {
-                (a, true)
-            } else {
-                (body, negated)
-            };
-        if let Some(id) = plant.signals.id(name)
-            && plant.signals.get(id).kind == SignalKind::Actuator
-            && let Some(v) = after.get_mut(id.index())
-        {
-            *v = safe;
-        }
-    }
+    let after = after_filter(plant, &detail.now, &t.literals);
     let _ = writeln!(
         h,
         "<section class=\"level\" data-level=\"0\"><h5>Current state</h5><p>The filter {}.</p>{}</section>",
@@ -898,19 +924,7 @@ fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str
         },
         state_table(plant, &signals, &after, &[], Some(&detail.now)),
     );
-    let situation: Vec<String> = t
-        .literals
-        .iter()
-        .zip(&t.estimated)
-        .map(|(l, est)| match est {
-            Some(sensor) => format!(
-                "{l} ({} by the temporal estimate of {sensor}, {})",
-                if l.starts_with('!') { "off" } else { "on" },
-                description(plant, sensor)
-            ),
-            None => literal_words(plant, l),
-        })
-        .collect();
+    let situation = situation(plant, t);
     let _ = writeln!(
         h,
         "<section class=\"level\" data-level=\"1\"><h5>Projection</h5><p>Without the filter, the orders would have gone out in the forbidden situation {}: {}.</p></section>",
@@ -933,8 +947,88 @@ fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str
         "<section class=\"level\" data-level=\"3\"><h5>Advanced state: the last changes</h5>{}</section>",
         changes_table(plant, &detail.changes, t.t, &literal_names)
     );
-    // Hypothesis, after seed 002: which sensor changes may have led the control
-    // program to the forbidden orders.
+    hypothesis_level(h, plant, t, detail, &signals, &actions);
+    h.push_str("</article>\n");
+}
+
+/// The signals constraint `written` reads, sorted, once each.
+fn constraint_signals(plant: &Plant, written: Option<&Constraint>) -> Vec<String> {
+    let mut read: Vec<String> = written
+        .map(|c| c.expr.names().into_iter().map(str::to_string).collect())
+        .unwrap_or_default();
+    read.sort();
+    read.dedup();
+    read.iter()
+        .filter(|n| plant.signals.id(n).is_some())
+        .cloned()
+        .collect()
+}
+
+/// The names the literals are about (`!RE(x)` is about `x`).
+fn literal_names(literals: &[String]) -> Vec<String> {
+    literals
+        .iter()
+        .map(|l| {
+            let l = l.trim_start_matches('!');
+            l.split_once('(')
+                .map_or(l, |(_, rest)| rest.trim_end_matches(')'))
+                .to_string()
+        })
+        .collect()
+}
+
+/// The current state once the filter acted: each order the constraint
+/// forbids (its `literals`) put back to its safe value.
+fn after_filter(plant: &Plant, now: &[bool], literals: &[String]) -> Vec<bool> {
+    let mut after = now.to_vec();
+    for l in literals {
+        let (negated, body) = l
+            .strip_prefix('!')
+            .map_or((false, l.as_str()), |b| (true, b));
+        let (name, safe) =
+            if let Some(a) = body.strip_prefix("RE(").and_then(|b| b.strip_suffix(')')) {
+                (a, false)
+            } else if let Some(a) = body.strip_prefix("FE(").and_then(|b| b.strip_suffix(')')) {
+                (a, true)
+            } else {
+                (body, negated)
+            };
+        if let Some(id) = plant.signals.id(name)
+            && plant.signals.get(id).kind == SignalKind::Actuator
+            && let Some(v) = after.get_mut(id.index())
+        {
+            *v = safe;
+        }
+    }
+    after
+}
+
+/// The literals of trip `t` in words, estimated ones saying so.
+fn situation(plant: &Plant, t: &Trip) -> Vec<String> {
+    t.literals
+        .iter()
+        .zip(&t.estimated)
+        .map(|(l, est)| match est {
+            Some(sensor) => format!(
+                "{l} ({} by the temporal estimate of {sensor}, {})",
+                if l.starts_with('!') { "off" } else { "on" },
+                description(plant, sensor)
+            ),
+            None => literal_words(plant, l),
+        })
+        .collect()
+}
+
+/// The explanation's last level, after seed 002: which sensor changes may
+/// have led the control program to the forbidden orders.
+fn hypothesis_level(
+    h: &mut String,
+    plant: &Plant,
+    t: &Trip,
+    detail: &TripDetail,
+    signals: &[String],
+    actions: &[String],
+) {
     let last: Option<&Change> = detail.changes.last().filter(|c| c.t == t.t);
     let recent: Vec<&Change> = detail.changes.iter().rev().take(3).collect();
     let mut inside = Vec::new();
@@ -982,7 +1076,7 @@ fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str
             escape(&actions.join("; "))
         );
     }
-    h.push_str("</ul></section>\n</article>\n");
+    h.push_str("</ul></section>\n");
 }
 
 fn models_section(h: &mut String, p: &Page<'_>) {
