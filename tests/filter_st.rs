@@ -545,6 +545,7 @@ struct RandomStats {
 /// `plant` under random sensors, proposals, flags and internal variables: the
 /// Rust filter and its Structured Text, for each coupling in both modes,
 /// `scans` scans each, compared on every variable they share.
+#[allow(clippy::too_many_lines)] // one scenario: both filters side by side, scan by scan
 fn random_runs(
     label: &str,
     plant: &Plant,
