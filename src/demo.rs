@@ -25,8 +25,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use crate::closed_loop::{self, LoopOutcome, LoopRun};
 use diagnoser::Failure;
+use runtime::closed_loop::{self, LoopOutcome, LoopRun};
 
 /// Arguments of `gardefou demo`.
 #[derive(Debug, Args)]

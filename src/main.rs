@@ -10,16 +10,13 @@ use diagnoser::Failure;
 
 mod args;
 mod check;
-mod closed_loop;
 mod demo;
 mod diagnose;
 mod filter;
-mod flags;
 mod learn;
 mod monitor;
 mod report;
 mod simulate;
-mod virtual_plc;
 
 /// Decentralised timed fault diagnosis for PLC-controlled plants, coupled to the
 /// PLC's safety filter.

@@ -1,6 +1,6 @@
 //! `gardefou simulate`: run a reference plant and write its logs, ground truth
 //! and damage record, or run it in real time as a virtual PLC served over
-//! Modbus TCP (`--serve-modbus`, see [`crate::virtual_plc`]).
+//! Modbus TCP (`--serve-modbus`, see [`runtime::virtual_plc`]).
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -19,8 +19,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use diagnoser::Failure;
 
 use crate::args::CouplingArg;
-use crate::closed_loop::CoupledPlc;
-use crate::virtual_plc::{self, VirtualPlc};
+use runtime::closed_loop::CoupledPlc;
+use runtime::virtual_plc::{self, VirtualPlc};
 
 /// Which plant to simulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -394,7 +394,7 @@ mod tests {
         };
         let mut ours = MemorySink::default();
         datasets::sim::run(&mut line, &mut control, &config, &mut ours, |_| {}).expect("runs");
-        let demo = crate::closed_loop::record(&plant, seed, duration).expect("runs");
+        let demo = runtime::closed_loop::record(&plant, seed, duration).expect("runs");
         assert!(ours.events.len() > 100, "{} events", ours.events.len());
         assert_eq!(ours.initial, demo.initial);
         assert_eq!(ours.events, demo.events);

@@ -1,7 +1,7 @@
 //! `gardefou monitor --http`: a flood of idle connections must neither take
 //! the file descriptors the PLC link needs nor lock out a fresh client.
 //!
-//! The limits are `src/monitor/http.rs`'s: at most `MAX_CONNECTIONS` (256)
+//! The limits are `runtime/src/monitor/http.rs`'s: at most `MAX_CONNECTIONS` (256)
 //! connections, or a quarter of the soft `RLIMIT_NOFILE` if that is fewer,
 //! the oldest closed to make room for a newcomer; a connection is closed
 //! after `HEADER_READ_TIMEOUT` (5 s) without a whole request head, and after
@@ -16,11 +16,11 @@ use std::time::{Duration, Instant};
 
 use tokio::runtime::Runtime;
 
-/// `MAX_CONNECTIONS` in `src/monitor/http.rs`.
+/// `MAX_CONNECTIONS` in `runtime/src/monitor/http.rs`.
 const MAX_CONNECTIONS: usize = 256;
-/// `HEADER_READ_TIMEOUT` in `src/monitor/http.rs`.
+/// `HEADER_READ_TIMEOUT` in `runtime/src/monitor/http.rs`.
 const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(5);
-/// `IDLE_TIMEOUT` in `src/monitor/http.rs`.
+/// `IDLE_TIMEOUT` in `runtime/src/monitor/http.rs`.
 const IDLE_TIMEOUT: Duration = Duration::from_secs(10);
 /// The monitor's descriptor limit (soft and hard) in this test: without a
 /// cap, the flood would take all of them.

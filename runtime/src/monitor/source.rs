@@ -8,10 +8,10 @@
 //! so a slow network or a paused producer delays a verdict and never makes
 //! one.
 
-use std::path::PathBuf;
+use std::path::Path;
 
 use diagnoser::{Event, Plant, Time, TimeFormat, TimeUnit};
-use learning::ingest::{IngestOptions, LogFormat, open};
+use learning::ingest::{IngestOptions, open};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
@@ -114,21 +114,12 @@ pub struct Replay {
 }
 
 impl Replay {
-    /// Opens the log; fails if it cannot be read or its header is wrong.
-    pub fn open(
-        path: PathBuf,
-        format: Option<LogFormat>,
-        unit: TimeUnit,
-        plant: &Plant,
-    ) -> Result<Replay, Failure> {
-        let options = IngestOptions {
-            format,
-            time_unit: unit,
-            ..IngestOptions::default()
-        };
-        let stream = open(&path, plant, &options).map_err(|e| Failure::BadInput(e.to_string()))?;
+    /// Opens the log as `options` say; fails if it cannot be read or its
+    /// header is wrong.
+    pub fn open(path: &Path, options: &IngestOptions, plant: &Plant) -> Result<Replay, Failure> {
+        let stream = open(path, plant, options).map_err(|e| Failure::BadInput(e.to_string()))?;
         Ok(Replay {
-            unit,
+            unit: options.time_unit,
             stream: Some(stream),
         })
     }

@@ -389,7 +389,7 @@ mod tests {
     use super::*;
 
     fn fixture(rel: &str) -> std::path::PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
     }
 
     /// The shipped F2 run's plant, diagnoser and events.

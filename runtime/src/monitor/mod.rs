@@ -1,8 +1,8 @@
-//! `gardefou monitor`: online diagnosis beside a PLC. Events come from a
+//! Online diagnosis beside a PLC (`gardefou monitor`). Events come from a
 //! [`source::Source`] as they happen (Modbus TCP, SocketCAN, a replayed log,
 //! JSON lines on stdin); every part's diagnoser reads them. Verdict changes go
 //! out as JSON lines (SPEC §3), the flags they raise go back to the PLC
-//! (Modbus), and `--http` serves `/status` and `/metrics`.
+//! (Modbus), and [`Config::http`] serves `/status` and `/metrics`.
 //!
 //! **Event time.** The diagnosers run on the source's clock: the time each
 //! scan was seen, not the time it arrived. A live source also sends
@@ -11,18 +11,18 @@
 //! then is the missing edge evidence. So a late reply, a paused producer or a
 //! flood delays a verdict and never changes it: the verdicts equal `diagnose`
 //! on the same events. When the watermark falls behind the live clock by more
-//! than `--max-lag` of wall time, the plant counts as *not observed*
+//! than [`Config::max_lag`] of wall time, the plant counts as *not observed*
 //! (`/status`, `/metrics`, a warning) until it catches up.
 //!
 //! A replay knows its next scan ahead: its deadlines fire at their own time on
-//! a clock mapped to the wall clock (`--speed`), before the next scan.
+//! a clock mapped to the wall clock ([`Config::speed`]), before the next scan.
 //!
 //! When a live source loses the plant (a dropped connection), the watermark
 //! stays where it was until the plant is seen again; the diagnosers then
 //! start again from the values read, with every clock unknown: what happened
 //! in the gap is unknown. Flags already raised stay raised and are written
 //! again. A `def_` flag goes up only once its verdict has held for
-//! `--confirm` beyond the watermark.
+//! [`Config::confirm`] beyond the watermark.
 
 pub mod can;
 pub mod http;
@@ -38,11 +38,9 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use clap::Args;
-use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
-use diagnoser::model::Model;
-use diagnoser::{Event, Plant, Time, TimeFormat, TimeUnit, time};
-use learning::ingest::LogFormat;
+use diagnoser::diagnosis::{PlantDiagnoser, Verdict};
+use diagnoser::{Event, Plant, Time, TimeFormat};
+use learning::ingest::IngestOptions;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
@@ -51,97 +49,82 @@ use diagnoser::Failure;
 use source::{FlagImage, Item, Link, Source};
 use status::Status;
 
-/// Arguments of `gardefou monitor`.
-#[derive(Debug, Args)]
-#[command(group(clap::ArgGroup::new("source").required(true).args(["modbus", "can", "replay", "stdin"])))]
-pub struct MonitorArgs {
-    /// Plant file: signals, parts, faults, partitions and the register map.
-    #[arg(long)]
-    plant: PathBuf,
-    /// Learned model (from `gardefou learn`).
-    #[arg(long)]
-    model: PathBuf,
-    /// Poll a PLC over Modbus TCP at the scan period (addresses: `[modbus]` of
-    /// the plant file, or the default map) and write the flags back to it.
-    #[arg(long, value_name = "HOST:PORT")]
-    modbus: Option<String>,
-    /// Read CANopen (CiA 401) PDOs from a SocketCAN interface, decoded with the
-    /// plant file's `[can]` bit mapping. `udp:HOST:PORT` reads the same frames
-    /// from UDP datagrams instead (16-byte SocketCAN `can_frame`s).
-    #[arg(long, value_name = "IFACE")]
-    can: Option<String>,
-    /// Replay a log (any form) at its recorded pace, times `--speed`.
-    #[arg(long, value_name = "LOG")]
-    replay: Option<PathBuf>,
-    /// Read events as JSON lines on standard input:
-    /// `{"t": 1200, "signal": "C4", "value": 1}`. The lines of the first
-    /// timestamp give the initial values (as in an events log). A line with
-    /// only a time, `{"t": 1500}`, is a watermark: nothing else happened up
-    /// to then (a quiet plant's deadlines fire on it).
-    #[arg(long)]
-    stdin: bool,
-    /// How late (in the source's time) a line on standard input may come
-    /// after a later one; later than that, it is a warning and ignored.
-    #[arg(long, value_parser = time::parse_duration, default_value = "0ms")]
-    lateness: Time,
-    /// How long a `def_` flag's verdict must hold, in the source's time beyond
-    /// the watermark, before the flag is raised and written to the PLC
-    /// (default: one scan period).
-    #[arg(long, value_parser = time::parse_duration)]
-    confirm: Option<Time>,
-    /// Wall time the watermark may lag the live clock before the plant counts
-    /// as not observed.
-    #[arg(long, value_parser = time::parse_duration, default_value = "1s")]
-    max_lag: Time,
-    /// Serve `/status` (JSON) and `/metrics` (Prometheus) on this address.
-    #[arg(long, value_name = "ADDR")]
-    http: Option<SocketAddr>,
-    /// Write the verdict lines to this file instead of standard output
-    /// (appended, so an earlier run's lines are kept).
-    #[arg(long, value_name = "FILE")]
-    output: Option<PathBuf>,
-    /// How much faster than real time the source's clock runs (a replay, or a
-    /// simulated PLC run with `simulate --speed`).
-    #[arg(long, default_value_t = 1.0)]
-    speed: f64,
-    /// Stop after this long, in wall-clock time (e.g. `10min`).
-    #[arg(long, value_parser = time::parse_duration)]
-    duration: Option<Time>,
-    /// Modbus unit identifier of the PLC.
-    #[arg(long, default_value_t = 1)]
-    unit_id: u8,
-    /// Log form for `--replay` (default: detected).
-    #[arg(long)]
-    format: Option<LogFormat>,
-    /// Unit of numeric timestamps (default: the plant file's).
-    #[arg(long)]
-    time_unit: Option<TimeUnit>,
-    /// Longest an unexpected sensor edge shows before the sensor reads its real
-    /// value again.
-    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
-    glitch_max: Time,
+/// Where the monitor's events come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SourceConfig {
+    /// Poll a PLC over Modbus TCP at the scan period (addresses: the plant's
+    /// [`diagnoser::plant::ModbusMap`]) and write the flags back to it.
+    Modbus {
+        /// `HOST:PORT` of the PLC.
+        address: String,
+        /// Modbus unit identifier of the PLC.
+        unit_id: u8,
+    },
+    /// CANopen (CiA 401) PDOs, decoded with the plant's `[can]` bit mapping.
+    Can {
+        /// A SocketCAN interface, or `udp:HOST:PORT` for the same frames in
+        /// UDP datagrams (16-byte SocketCAN `can_frame`s).
+        interface: String,
+    },
+    /// A log (any form) replayed at its recorded pace, times the speed.
+    Replay {
+        /// The log.
+        log: PathBuf,
+    },
+    /// Events as JSON lines on standard input (see [`stdin`]).
+    Stdin {
+        /// How late, in the source's time, a line may come after a later one;
+        /// later than that, it is a warning and ignored.
+        lateness: Time,
+    },
 }
 
-/// Runs `gardefou monitor`.
-pub fn run(args: MonitorArgs) -> Result<(), Failure> {
-    if !(args.speed.is_finite() && args.speed > 0.0) {
+impl SourceConfig {
+    /// Whether the source polls a running PLC: a poll may see two of the
+    /// PLC's scans at once, so its diagnosers need
+    /// [`diagnoser::diagnosis::DiagnoserOptions::polled`]; a log or a
+    /// producer on stdin gives the scans as they were.
+    pub fn polled(&self) -> bool {
+        matches!(self, SourceConfig::Modbus { .. } | SourceConfig::Can { .. })
+    }
+}
+
+/// Settings of one monitor run.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Where the events come from.
+    pub source: SourceConfig,
+    /// How a replayed log is read (its form, or detected) and the unit of
+    /// numeric timestamps (a replay's and stdin's).
+    pub ingest: IngestOptions,
+    /// How long a `def_` flag's verdict must hold, in the source's time beyond
+    /// the watermark, before the flag is raised and written to the PLC
+    /// (`None`: one scan period of the plant).
+    pub confirm: Option<Time>,
+    /// Wall time the watermark may lag the live clock before the plant counts
+    /// as not observed.
+    pub max_lag: Duration,
+    /// Where to serve `/status` (JSON) and `/metrics` (Prometheus), if at all.
+    pub http: Option<SocketAddr>,
+    /// File the verdict lines are appended to; `None`: standard output (lines
+    /// for people on a terminal, JSON lines otherwise).
+    pub output: Option<PathBuf>,
+    /// How much faster than real time the source's clock runs (a replay, or
+    /// a simulated PLC run faster than real time); positive.
+    pub speed: f64,
+    /// Wall-clock time after which the monitor stops, if any.
+    pub duration: Option<Duration>,
+}
+
+/// Runs the monitor of `plant` with `diagnoser` (built with
+/// [`SourceConfig::polled`] as its `polled` option) until the source ends, a
+/// signal (SIGINT, SIGTERM) or [`Config::duration`]; then prints the summary
+/// on stderr.
+pub fn run(plant: Plant, diagnoser: PlantDiagnoser, config: Config) -> Result<(), Failure> {
+    if !(config.speed.is_finite() && config.speed > 0.0) {
         return Err(Failure::bad("--speed: must be a positive number"));
     }
-    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
-    let model = Model::from_path(&args.model).map_err(Failure::bad)?;
-    let diagnoser = PlantDiagnoser::new(
-        &plant,
-        &model,
-        &DiagnoserOptions {
-            glitch_max: args.glitch_max,
-            // A poll may see two of the PLC's scans at once; a log or a
-            // producer on stdin gives the scans as they were.
-            polled: args.modbus.is_some() || args.can.is_some(),
-        },
-    )
-    .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
-    let unit = args.time_unit.unwrap_or(plant.time_unit);
-    let output: Box<dyn Write> = match &args.output {
+    let output: Box<dyn Write> = match &config.output {
         Some(path) => Box::new(
             std::fs::OpenOptions::new()
                 .create(true)
@@ -151,45 +134,59 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         ),
         None => Box::new(std::io::stdout()),
     };
-    let terminal = args.output.is_none() && std::io::stdout().is_terminal();
-    // A replay is opened before the runtime starts: its reader (Parquet's
-    // among them) may run a runtime of its own.
-    let replay = match args.replay.clone() {
-        Some(path) => Some((
-            source::Replay::open(path.clone(), args.format, unit, &plant)?,
-            format!("replay {}", path.display()),
-        )),
-        None => None,
-    };
+    let terminal = config.output.is_none() && std::io::stdout().is_terminal();
+    let open = prepare_source(&config, &plant)?;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
     let result = runtime.block_on(async {
-        let (source, name): (Box<dyn Source>, String) = if let Some((r, name)) = replay {
-            (Box::new(r), name)
-        } else if let Some(addr) = &args.modbus {
-            let s = modbus::ModbusSource::new(addr, args.unit_id, &plant, args.speed)?;
-            (Box::new(s), format!("modbus {addr}"))
-        } else if let Some(iface) = &args.can {
-            let s = can::CanSource::new(iface, &plant, args.speed)?;
-            (Box::new(s), format!("can {iface}"))
-        } else {
-            let s = stdin::Stdin {
-                plant: plant.clone(),
-                unit,
-                lateness: args.lateness,
-                speed: args.speed,
-            };
-            (Box::new(s), "stdin".to_string())
-        };
-        monitor(&args, plant, diagnoser, source, name, output, terminal).await
+        let (source, name) = open()?;
+        monitor(&config, plant, diagnoser, source, name, output, terminal).await
     });
     // A read of standard input cannot be cancelled: waiting for it would keep
     // a stopped monitor alive until the writer closes its end.
     runtime.shutdown_background();
     result
 }
+
+/// Opens the source inside the monitor's runtime, and names it (for
+/// `/status`).
+type OpenSource = Box<dyn FnOnce() -> Result<(Box<dyn Source>, String), Failure>>;
+
+/// What opening the source of `config` takes. A replay is opened now, before
+/// the runtime starts: its reader (Parquet's among them) may run a runtime of
+/// its own. A live source is opened inside the runtime (a SocketCAN socket
+/// registers with its reactor).
+fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure> {
+    let plant = plant.clone();
+    let speed = config.speed;
+    Ok(match config.source.clone() {
+        SourceConfig::Replay { log } => {
+            let replay = source::Replay::open(&log, &config.ingest, &plant)?;
+            let name = format!("replay {}", log.display());
+            Box::new(move || Ok((Box::new(replay) as Box<dyn Source>, name)))
+        }
+        SourceConfig::Modbus { address, unit_id } => Box::new(move || {
+            let s = modbus::ModbusSource::new(&address, unit_id, &plant, speed)?;
+            Ok((Box::new(s) as Box<dyn Source>, format!("modbus {address}")))
+        }),
+        SourceConfig::Can { interface } => Box::new(move || {
+            let s = can::CanSource::new(&interface, &plant, speed)?;
+            Ok((Box::new(s) as Box<dyn Source>, format!("can {interface}")))
+        }),
+        SourceConfig::Stdin { lateness } => {
+            let s = stdin::Stdin {
+                plant,
+                unit: config.ingest.time_unit,
+                lateness,
+                speed,
+            };
+            Box::new(move || Ok((Box::new(s) as Box<dyn Source>, "stdin".to_string())))
+        }
+    })
+}
+
 /// How the monitor writes verdict lines.
 struct Writer {
     out: Box<dyn Write>,
@@ -227,6 +224,25 @@ struct Outputs {
 }
 
 impl Outputs {
+    /// Verdict lines to `writer`, `def_` flags confirmed after
+    /// `confirmation`, flags to the source through `flag_tx`.
+    fn new(
+        writer: Writer,
+        confirmation: Time,
+        status: Arc<Mutex<Status>>,
+        flag_tx: watch::Sender<FlagImage>,
+        plant: Plant,
+    ) -> Outputs {
+        Outputs {
+            writer,
+            board: FlagBoard::with_confirmation(confirmation),
+            status,
+            flag_tx,
+            plant,
+            evidence: Cell::new(Instant::now()),
+        }
+    }
+
     fn emit(&mut self, v: Verdict) {
         self.writer.line(&v);
         let changed = self.board.update(&v);
@@ -298,6 +314,22 @@ struct Run {
 }
 
 impl Run {
+    /// `diagnoser` fed in event time, its verdicts to `out`; the source's
+    /// clock runs `speed` times faster than the wall clock.
+    fn new(diagnoser: PlantDiagnoser, out: Outputs, speed: f64) -> Run {
+        Run {
+            diagnoser,
+            out,
+            speed,
+            anchor: None,
+            started: false,
+            blind: false,
+            lost_at: None,
+            watermark: None,
+            observed: true,
+        }
+    }
+
     /// The source's time now, on the live clock.
     fn live_now(&self) -> Option<Time> {
         self.anchor
@@ -447,6 +479,31 @@ impl Run {
         self.out.publish_flags();
     }
 
+    /// A replay's deadline `d`, due on the live clock at `at`, has come.
+    fn replayed_deadline(&mut self, d: Time, at: Instant) {
+        self.out.evidence.set(at);
+        // Past the deadline, so that the loop always moves on.
+        self.advance_to(d.max(self.diagnoser.now() + 1));
+        self.out.status(|s| s.evidence.record(at.elapsed()));
+    }
+
+    /// Takes in one item. A replay's scan (the source knows it ahead) comes
+    /// back instead, to wait for its time on the live clock.
+    fn receive(
+        &mut self,
+        item: Item,
+        knows_ahead: bool,
+    ) -> Result<Option<(Vec<Event>, Instant)>, Failure> {
+        match item {
+            Item::Scan(scan) if knows_ahead && self.started => {
+                let t = scan.first().map_or(0, |e| e.t);
+                let at = self.wall_of(t).unwrap_or_else(Instant::now);
+                Ok(Some((scan, at)))
+            }
+            item => self.item(item).map(|()| None),
+        }
+    }
+
     /// Takes in one item from a live source.
     fn item(&mut self, item: Item) -> Result<(), Failure> {
         match item {
@@ -476,8 +533,20 @@ impl Run {
     }
 }
 
+/// Why the event loop ended.
+enum End {
+    /// A signal, [`Config::duration`], or the source's end (`None`): the
+    /// summary follows.
+    Stopped(Option<&'static str>),
+    /// The reader of the verdict lines went away: nothing more to write.
+    Closed,
+}
+
+/// The monitor on its opened source, inside the runtime: the status (served
+/// over HTTP if asked), the channels to and from the source, the event loop,
+/// then the summary.
 async fn monitor(
-    args: &MonitorArgs,
+    config: &Config,
     plant: Plant,
     diagnoser: PlantDiagnoser,
     source: Box<dyn Source>,
@@ -488,50 +557,48 @@ async fn monitor(
     let time_format = source.time_format();
     let knows_ahead = source.knows_ahead();
     let status = Arc::new(Mutex::new(Status::new(&plant, source_name, time_format)));
-    if let Some(addr) = args.http {
+    if let Some(addr) = config.http {
         http::serve(addr, status.clone()).await?;
     }
     // Room for a replay to read well ahead of its pace.
-    let (tx, mut rx) = mpsc::channel::<Item>(16_384);
+    let (tx, rx) = mpsc::channel::<Item>(16_384);
     let (flag_tx, flag_rx) = watch::channel(vec![false; plant.flags().len()]);
     source.spawn(Link {
         items: tx,
         flags: flag_rx,
     });
-    let confirmation = args.confirm.unwrap_or(plant.scan_period);
-    let mut run = Run {
-        diagnoser,
-        out: Outputs {
-            writer: Writer {
-                out: output,
-                terminal,
-                time: time_format,
-                error: None,
-            },
-            board: FlagBoard::with_confirmation(confirmation),
-            status: status.clone(),
-            flag_tx,
-            plant,
-            evidence: Cell::new(Instant::now()),
-        },
-        speed: args.speed,
-        anchor: None,
-        started: false,
-        blind: false,
-        lost_at: None,
-        watermark: None,
-        observed: true,
+    let writer = Writer {
+        out: output,
+        terminal,
+        time: time_format,
+        error: None,
     };
-    let stop_at = args
-        .duration
-        .map(|d| Instant::now() + Duration::from_nanos(d.max(0) as u64));
-    let max_lag = Duration::from_nanos(args.max_lag.max(0) as u64);
+    let confirmation = config.confirm.unwrap_or(plant.scan_period);
+    let out = Outputs::new(writer, confirmation, status, flag_tx, plant);
+    let mut run = Run::new(diagnoser, out, config.speed);
+    match event_loop(&mut run, rx, config, knows_ahead).await? {
+        End::Stopped(stopped) => finish(&mut run, stopped, knows_ahead),
+        End::Closed => Ok(()),
+    }
+}
+
+/// Feeds `run` with the source's items until a signal, the duration or the
+/// source's end. A replay's scans wait for their time on the live clock, and
+/// its deadlines fire on that clock; a live source's fire only on its
+/// watermarks.
+async fn event_loop(
+    run: &mut Run,
+    mut rx: mpsc::Receiver<Item>,
+    config: &Config,
+    knows_ahead: bool,
+) -> Result<End, Failure> {
+    let stop_at = config.duration.map(|d| Instant::now() + d);
     let mut lag_check = tokio::time::interval(Duration::from_millis(100));
     lag_check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     // A replayed scan received, waiting for its time on the live clock.
     let mut pending: Option<(Vec<Event>, Instant)> = None;
     let mut terminate = terminate_signal()?;
-    let stopped = loop {
+    loop {
         let pending_t = pending.as_ref().and_then(|p| p.0.first()).map(|e| e.t);
         // A replay's deadline fires at its own time, if before the next scan.
         let deadline = match (run.diagnoser.next_deadline(), pending_t) {
@@ -542,17 +609,14 @@ async fn monitor(
         let far = Instant::now() + Duration::from_secs(86_400);
         tokio::select! {
             biased;
-            _ = tokio::signal::ctrl_c() => break Some("interrupted"),
-            _ = terminate.recv() => break Some("terminated"),
+            _ = tokio::signal::ctrl_c() => return Ok(End::Stopped(Some("interrupted"))),
+            _ = terminate.recv() => return Ok(End::Stopped(Some("terminated"))),
             () = tokio::time::sleep_until(stop_at.unwrap_or(far)), if stop_at.is_some() => {
-                break Some("--duration reached");
+                return Ok(End::Stopped(Some("--duration reached")));
             }
             () = wake_at(deadline.map_or(far, |d| d.1)), if deadline.is_some() => {
                 if let Some((d, at)) = deadline {
-                    run.out.evidence.set(at);
-                    // Past the deadline, so that the loop always moves on.
-                    run.advance_to(d.max(run.diagnoser.now() + 1));
-                    run.out.status(|s| s.evidence.record(at.elapsed()));
+                    run.replayed_deadline(d, at);
                 }
             }
             () = wake_at(due.unwrap_or(far)), if due.is_some() => {
@@ -560,32 +624,25 @@ async fn monitor(
                     run.scan(scan, at);
                 }
             }
-            _ = lag_check.tick(), if !knows_ahead => run.check_lag(max_lag),
+            _ = lag_check.tick(), if !knows_ahead => run.check_lag(config.max_lag),
             item = rx.recv(), if pending.is_none() => {
-                let Some(item) = item else { break None };
-                match item {
-                    Item::Scan(scan) if knows_ahead && run.started => {
-                        let t = scan.first().map_or(0, |e| e.t);
-                        let at = run.wall_of(t).unwrap_or_else(Instant::now);
-                        pending = Some((scan, at));
-                    }
-                    item => run.item(item)?,
-                }
+                let Some(item) = item else {
+                    return Ok(End::Stopped(None));
+                };
+                pending = run.receive(item, knows_ahead)?;
             }
         }
         let error = run.out.writer.error.take();
         if let Some(e) = error {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
-                return Ok(());
+                return Ok(End::Closed);
             }
             return Err(Failure::output(e));
         }
         // Whatever the input, the runtime gets its turn now and then, so that
         // signals are always heard.
         tokio::task::consume_budget().await;
-    };
-    drop(rx);
-    finish(&mut run, stopped, knows_ahead)
+    }
 }
 
 /// Ends the run: deadlines up to the watermark (a replay: up to its clock, or
@@ -719,4 +776,237 @@ fn readable(v: &Verdict, time: TimeFormat) -> String {
         flags,
         v.reason
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use diagnoser::diagnosis::DiagnoserOptions;
+    use diagnoser::model::Model;
+    use learning::ingest::open;
+
+    use super::*;
+
+    /// Verdict lines written to memory, readable while the monitor runs.
+    #[derive(Clone, Default)]
+    struct Lines(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Lines {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().expect("lines").extend_from_slice(bytes);
+            Ok(bytes.len())
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Lines {
+        fn read(&self) -> Vec<String> {
+            let bytes = self.0.lock().expect("lines").clone();
+            String::from_utf8(bytes)
+                .expect("UTF-8")
+                .lines()
+                .map(str::to_string)
+                .collect()
+        }
+    }
+
+    /// The shipped F2 run (C4 stuck): the plant, a diagnoser, how its times
+    /// print, its first values and its scans.
+    struct F2 {
+        plant: Plant,
+        diagnoser: PlantDiagnoser,
+        time: TimeFormat,
+        t0: Time,
+        initial: Vec<bool>,
+        scans: Vec<Vec<Event>>,
+    }
+
+    fn f2() -> F2 {
+        let at = |rel: &str| Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel);
+        let plant = Plant::from_path(&at("datasets/data/sorting/F2/plant.toml")).expect("plant");
+        let model = Model::from_path(&at("diagnoser/tests/fixtures/diagnosis/sorting-model.json"))
+            .expect("model");
+        let diagnoser =
+            PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
+        let options = IngestOptions {
+            time_unit: plant.time_unit,
+            ..IngestOptions::default()
+        };
+        let log = open(&at("datasets/data/sorting/F2/events.csv"), &plant, &options).expect("log");
+        let mut scans: Vec<Vec<Event>> = Vec::new();
+        for e in log.batches.flat_map(|b| b.expect("batch")) {
+            match scans.last_mut() {
+                Some(scan) if scan[0].t == e.t => scan.push(e),
+                _ => scans.push(vec![e]),
+            }
+        }
+        F2 {
+            plant,
+            diagnoser,
+            time: log.time,
+            t0: log.start,
+            initial: log.initial,
+            scans,
+        }
+    }
+
+    /// What `diagnose` gives on the same scans up to the first deadline
+    /// between two scans that changes a verdict (no event came in time): the
+    /// verdict lines before it, those it gives, and its time.
+    fn offline_until_deadline(f2: &F2) -> (Vec<String>, Vec<String>, Time) {
+        let mut d = f2.diagnoser.clone();
+        let mut lines = Vec::new();
+        d.start(f2.t0, &f2.initial);
+        for scan in &f2.scans {
+            let t = scan[0].t;
+            // The deadlines before the scan, one at a time.
+            while let Some(x) = d.next_deadline().filter(|&x| x < t && x > d.now()) {
+                let mut fired = Vec::new();
+                d.advance_to(x, &mut |v| fired.push(v.json_line(f2.time, None)));
+                if !fired.is_empty() {
+                    return (lines, fired, x);
+                }
+            }
+            let mut emit = |v: Verdict| lines.push(v.json_line(f2.time, None));
+            d.advance_to(t - 1, &mut emit);
+            for &e in scan {
+                d.push(e, &mut emit);
+            }
+            d.advance_to(t, &mut emit);
+        }
+        panic!("no deadline changes a verdict between two scans of the F2 run");
+    }
+
+    /// The monitor's core for `f2`, its verdict lines to `lines`; its clock
+    /// runs `speed` times faster than the wall clock.
+    fn core(f2: &F2, lines: &Lines, speed: f64) -> Run {
+        let status = Status::new(&f2.plant, "test".to_string(), f2.time);
+        let (flag_tx, _) = watch::channel(Vec::new());
+        let writer = Writer {
+            out: Box::new(lines.clone()),
+            terminal: false,
+            time: f2.time,
+            error: None,
+        };
+        let out = Outputs::new(
+            writer,
+            f2.plant.scan_period,
+            Arc::new(Mutex::new(status)),
+            flag_tx,
+            f2.plant.clone(),
+        );
+        Run::new(f2.diagnoser.clone(), out, speed)
+    }
+
+    /// A live source's deadline fires on its watermark, never on the wall
+    /// clock: with the watermark stopped just before it, however far the live
+    /// clock runs past it, the verdict does not come; the watermark reaching
+    /// it brings the verdict of `diagnose`.
+    #[test]
+    fn a_deadline_waits_for_the_watermark_not_the_wall_clock() {
+        let f2 = f2();
+        let (before, fired, deadline) = offline_until_deadline(&f2);
+        let lines = Lines::default();
+        // A million times faster than the wall clock: the live clock passes
+        // the deadline within a millisecond.
+        let mut run = core(&f2, &lines, 1e6);
+        run.item(Item::Start(f2.t0, f2.initial.clone()))
+            .expect("start");
+        for scan in f2.scans.iter().take_while(|s| s[0].t < deadline) {
+            run.item(Item::Scan(scan.clone())).expect("scan");
+        }
+        run.item(Item::Watermark(deadline - 1)).expect("watermark");
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(
+            run.live_now()
+                .is_some_and(|now| now > deadline + 1_000 * diagnoser::MS)
+        );
+        run.check_lag(Duration::ZERO);
+        assert!(!run.observed, "the watermark lags the live clock");
+        assert_eq!(lines.read(), before);
+        run.item(Item::Watermark(deadline)).expect("watermark");
+        assert_eq!(lines.read(), [before, fired].concat());
+    }
+
+    /// A live source fed by the test, item by item; it ends when the test
+    /// drops its sender.
+    struct Fed(std::sync::mpsc::Receiver<Item>);
+
+    impl Source for Fed {
+        fn time_format(&self) -> TimeFormat {
+            TimeFormat::Numeric(diagnoser::TimeUnit::Ms)
+        }
+
+        fn spawn(self: Box<Self>, link: Link) {
+            std::thread::spawn(move || {
+                for item in self.0 {
+                    if link.items.blocking_send(item).is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    }
+
+    /// The same through the monitor's event loop, with its timers and lag
+    /// checks running: a paused source delays the deadline's verdict, and
+    /// its watermark brings it.
+    #[test]
+    fn the_event_loop_fires_a_live_deadline_only_on_the_watermark() {
+        let f2 = f2();
+        let (before, fired, deadline) = offline_until_deadline(&f2);
+        let want = [before.clone(), fired].concat();
+        assert_eq!(f2.time, TimeFormat::Numeric(diagnoser::TimeUnit::Ms));
+        let lines = Lines::default();
+        let (items, fed) = std::sync::mpsc::channel();
+        let config = Config {
+            source: SourceConfig::Stdin { lateness: 0 },
+            ingest: IngestOptions::default(),
+            confirm: None,
+            max_lag: Duration::from_millis(50),
+            http: None,
+            output: None,
+            speed: 1e4,
+            duration: None,
+        };
+        let output = lines.clone();
+        let (plant, diagnoser) = (f2.plant.clone(), f2.diagnoser.clone());
+        let monitor = std::thread::spawn(move || {
+            let runtime = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .expect("runtime");
+            let source = Box::new(Fed(fed));
+            let name = "test".to_string();
+            let output = Box::new(output);
+            runtime.block_on(monitor(
+                &config, plant, diagnoser, source, name, output, false,
+            ))
+        });
+        let send = |item| items.send(item).expect("the monitor runs");
+        send(Item::Start(f2.t0, f2.initial.clone()));
+        for scan in f2.scans.iter().take_while(|s| s[0].t < deadline) {
+            send(Item::Scan(scan.clone()));
+        }
+        send(Item::Watermark(deadline - 1));
+        // The source pauses: ten thousand times faster than the wall clock,
+        // the live clock runs an hour past the deadline.
+        std::thread::sleep(Duration::from_millis(400));
+        assert_eq!(lines.read(), before);
+        send(Item::Watermark(deadline));
+        let waited = std::time::Instant::now();
+        while lines.read().len() < want.len() && waited.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(lines.read(), want);
+        drop(items);
+        monitor
+            .join()
+            .expect("the monitor ends")
+            .expect("no failure");
+    }
 }

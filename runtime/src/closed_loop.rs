@@ -52,7 +52,7 @@ pub struct LoopOutcome {
 
 /// The PLC of the closed loop: filter-based safe control plus the diagnosers.
 #[derive(Clone)]
-pub(crate) struct CoupledPlc {
+pub struct CoupledPlc {
     filter: Filter,
     /// The diagnosers (none while recording a run to learn from).
     diagnoser: Option<PlantDiagnoser>,
@@ -72,7 +72,7 @@ impl CoupledPlc {
     /// Safe control by constraints (`Mode::Control`) through `filter`, with
     /// `diagnoser`'s verdicts raising the filter's flags; fallback scans are
     /// counted from `from` on.
-    pub(crate) fn new(filter: Filter, diagnoser: Option<PlantDiagnoser>, from: Time) -> CoupledPlc {
+    pub fn new(filter: Filter, diagnoser: Option<PlantDiagnoser>, from: Time) -> CoupledPlc {
         CoupledPlc {
             filter,
             diagnoser,
@@ -89,12 +89,12 @@ impl CoupledPlc {
 
     /// The filter, to set flags from outside the diagnosers (e.g. a Modbus
     /// client of the virtual PLC) between scans.
-    pub(crate) fn filter_mut(&mut self) -> &mut Filter {
+    pub fn filter_mut(&mut self) -> &mut Filter {
         &mut self.filter
     }
 
     /// Scans in which the filter overrode the computed orders, from `from` on.
-    pub(crate) fn fallback_scans(&self) -> u64 {
+    pub fn fallback_scans(&self) -> u64 {
         self.fallback_scans
     }
 

@@ -1,0 +1,27 @@
+//! What runs beside a live PLC, or in closed loop with a simulated one, in
+//! real time or in event time.
+//!
+//! - [`monitor`]: online diagnosis (`gardefou monitor`): events from a live
+//!   source (Modbus TCP, SocketCAN, JSON lines on stdin) or a replay paced on
+//!   the wall clock, deadlines fired in event time, verdict lines out, flags
+//!   back to the PLC, `/status` and `/metrics` over HTTP.
+//! - [`virtual_plc`]: the simulated sorting line scanning in real time under
+//!   safe control through the safety filter, behind a Modbus TCP server
+//!   (`gardefou simulate --serve-modbus`).
+//! - [`flags`]: verdicts to the `def_` and `suspect_` flags a PLC's filter
+//!   reads, shared by the monitor and the closed loop.
+//! - [`closed_loop`]: the demo's loop (`gardefou demo`): the simulated sorting
+//!   line, safe control through the rewritten filter, the diagnosers, and
+//!   their flags back to the filter.
+//!
+//! It takes plain settings (no command-line parsing) and returns
+//! [`diagnoser::Failure`].
+//!
+//! It is not for: replaying logs offline (`diagnose`, `report`), learning
+//! models, or the filter's rewriting and Structured Text; it calls the crates
+//! that do.
+
+pub mod closed_loop;
+pub mod flags;
+pub mod monitor;
+pub mod virtual_plc;

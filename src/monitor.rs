@@ -1,0 +1,141 @@
+//! `gardefou monitor`: online diagnosis beside a PLC (see
+//! [`runtime::monitor`]): the arguments, checked and turned into the
+//! monitor's settings.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::Args;
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
+use diagnoser::model::Model;
+use diagnoser::{Failure, Plant, Time, TimeUnit, time};
+use learning::ingest::{IngestOptions, LogFormat};
+use runtime::monitor::{Config, SourceConfig};
+
+/// Arguments of `gardefou monitor`.
+#[derive(Debug, Args)]
+#[command(group(clap::ArgGroup::new("source").required(true).args(["modbus", "can", "replay", "stdin"])))]
+pub struct MonitorArgs {
+    /// Plant file: signals, parts, faults, partitions and the register map.
+    #[arg(long)]
+    plant: PathBuf,
+    /// Learned model (from `gardefou learn`).
+    #[arg(long)]
+    model: PathBuf,
+    /// Poll a PLC over Modbus TCP at the scan period (addresses: `[modbus]` of
+    /// the plant file, or the default map) and write the flags back to it.
+    #[arg(long, value_name = "HOST:PORT")]
+    modbus: Option<String>,
+    /// Read CANopen (CiA 401) PDOs from a SocketCAN interface, decoded with the
+    /// plant file's `[can]` bit mapping. `udp:HOST:PORT` reads the same frames
+    /// from UDP datagrams instead (16-byte SocketCAN `can_frame`s).
+    #[arg(long, value_name = "IFACE")]
+    can: Option<String>,
+    /// Replay a log (any form) at its recorded pace, times `--speed`.
+    #[arg(long, value_name = "LOG")]
+    replay: Option<PathBuf>,
+    /// Read events as JSON lines on standard input:
+    /// `{"t": 1200, "signal": "C4", "value": 1}`. The lines of the first
+    /// timestamp give the initial values (as in an events log). A line with
+    /// only a time, `{"t": 1500}`, is a watermark: nothing else happened up
+    /// to then (a quiet plant's deadlines fire on it).
+    #[arg(long)]
+    stdin: bool,
+    /// How late (in the source's time) a line on standard input may come
+    /// after a later one; later than that, it is a warning and ignored.
+    #[arg(long, value_parser = time::parse_duration, default_value = "0ms")]
+    lateness: Time,
+    /// How long a `def_` flag's verdict must hold, in the source's time beyond
+    /// the watermark, before the flag is raised and written to the PLC
+    /// (default: one scan period).
+    #[arg(long, value_parser = time::parse_duration)]
+    confirm: Option<Time>,
+    /// Wall time the watermark may lag the live clock before the plant counts
+    /// as not observed.
+    #[arg(long, value_parser = time::parse_duration, default_value = "1s")]
+    max_lag: Time,
+    /// Serve `/status` (JSON) and `/metrics` (Prometheus) on this address.
+    #[arg(long, value_name = "ADDR")]
+    http: Option<SocketAddr>,
+    /// Write the verdict lines to this file instead of standard output
+    /// (appended, so an earlier run's lines are kept).
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// How much faster than real time the source's clock runs (a replay, or a
+    /// simulated PLC run with `simulate --speed`).
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Stop after this long, in wall-clock time (e.g. `10min`).
+    #[arg(long, value_parser = time::parse_duration)]
+    duration: Option<Time>,
+    /// Modbus unit identifier of the PLC.
+    #[arg(long, default_value_t = 1)]
+    unit_id: u8,
+    /// Log form for `--replay` (default: detected).
+    #[arg(long)]
+    format: Option<LogFormat>,
+    /// Unit of numeric timestamps (default: the plant file's).
+    #[arg(long)]
+    time_unit: Option<TimeUnit>,
+    /// Longest an unexpected sensor edge shows before the sensor reads its real
+    /// value again.
+    #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
+    glitch_max: Time,
+}
+
+/// Runs `gardefou monitor`.
+pub fn run(args: MonitorArgs) -> Result<(), Failure> {
+    if !(args.speed.is_finite() && args.speed > 0.0) {
+        return Err(Failure::bad("--speed: must be a positive number"));
+    }
+    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
+    let model = Model::from_path(&args.model).map_err(Failure::bad)?;
+    let config = config(&args, &plant);
+    let options = DiagnoserOptions {
+        glitch_max: args.glitch_max,
+        polled: config.source.polled(),
+    };
+    let diagnoser = PlantDiagnoser::new(&plant, &model, &options)
+        .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
+    runtime::monitor::run(plant, diagnoser, config)
+}
+
+/// The source the arguments name (clap lets exactly one through).
+fn source(args: &MonitorArgs) -> SourceConfig {
+    if let Some(log) = &args.replay {
+        SourceConfig::Replay { log: log.clone() }
+    } else if let Some(address) = &args.modbus {
+        SourceConfig::Modbus {
+            address: address.clone(),
+            unit_id: args.unit_id,
+        }
+    } else if let Some(interface) = &args.can {
+        SourceConfig::Can {
+            interface: interface.clone(),
+        }
+    } else {
+        SourceConfig::Stdin {
+            lateness: args.lateness,
+        }
+    }
+}
+
+/// The monitor's settings from the arguments.
+fn config(args: &MonitorArgs, plant: &Plant) -> Config {
+    let wall = |t: Time| Duration::from_nanos(t.max(0) as u64);
+    Config {
+        source: source(args),
+        ingest: IngestOptions {
+            format: args.format,
+            time_unit: args.time_unit.unwrap_or(plant.time_unit),
+            ..IngestOptions::default()
+        },
+        confirm: args.confirm,
+        max_lag: wall(args.max_lag),
+        http: args.http,
+        output: args.output.clone(),
+        speed: args.speed,
+        duration: args.duration.map(wall),
+    }
+}
