@@ -140,12 +140,14 @@ pub struct Status {
     pub far_ahead: u64,
     /// Flag images written to the PLC.
     pub flag_writes: u64,
+    /// From evidence to a changed verdict written: the label latency.
     #[serde(skip)]
     pub latency: Latency,
     /// From evidence to the diagnosers done with it, for every scan and
     /// deadline, whether or not a verdict changed: what a label would wait.
     #[serde(skip)]
     pub evidence: Latency,
+    /// How the source writes its times (`t` is written in it).
     #[serde(skip)]
     pub time: TimeFormat,
     #[serde(skip)]
