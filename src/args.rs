@@ -64,6 +64,19 @@ impl ReplayArgs {
         let unit = self.time_unit.unwrap_or(plant.time_unit);
         self.end.map(|e| (e * unit.nanos() as f64).round() as Time)
     }
+
+    /// What the report replays: these files, read and diagnosed as `diagnose`
+    /// does.
+    pub fn for_report(&self, plant: &Plant) -> report::Replay {
+        report::Replay {
+            plant_path: self.plant.clone(),
+            model_path: self.model.clone(),
+            logs: self.logs.clone(),
+            ingest: self.ingest(plant),
+            options: self.options(),
+            end: self.end(plant),
+        }
+    }
 }
 
 /// How a filter uses the diagnosers' flags (the virtual PLC's, the generated

@@ -96,13 +96,13 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
         write_summary(&mut out, &summaries, several, colour).map_err(Failure::output)?;
     }
     if let Some(path) = &args.report {
-        let request = crate::report::Request {
-            replay,
+        let request = report::Request {
+            replay: replay.for_report(&plant),
             coupling: filter_coupling::filter::Coupling::Flags,
-            layout: Some(crate::report::pictures::Layout::Auto),
+            layout: Some(report::pictures::Layout::Auto),
         };
-        let page = crate::report::build(&plant, &model, &request)?;
-        crate::report::write_atomically(path, page.as_bytes())?;
+        let page = report::build(&plant, &model, &request)?;
+        report::write_atomically(path, page.as_bytes())?;
         eprintln!(
             "report written to {} ({} bytes)",
             path.display(),

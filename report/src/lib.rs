@@ -1,5 +1,5 @@
-//! `gardefou report`: a self-contained HTML fault review for maintenance
-//! engineers.
+//! The HTML fault review for maintenance engineers: the library behind
+//! `gardefou report` and `gardefou diagnose --report`.
 //!
 //! Each log is replayed through every part's diagnoser and the safety filter
 //! ([`collect`]); the page ([`html`]) then gives, per part, the verdict and its
@@ -11,96 +11,57 @@
 //!
 //! It is not for live monitoring (that is `monitor`'s `/status`), nor a
 //! substitute for the JSON lines of `diagnose`, which stay the machine-readable
-//! record.
+//! record. It reads no command line: the binary turns its arguments into a
+//! [`Request`].
 
 pub mod collect;
 pub mod html;
 pub mod pictures;
 pub mod words;
 
+#[cfg(test)]
+mod fixtures;
+
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
-use clap::{Args, ValueEnum};
-use diagnoser::Plant;
+use diagnoser::diagnosis::DiagnoserOptions;
 use diagnoser::model::Model;
+use diagnoser::{Failure, Plant, Time};
 use filter_coupling::filter::Coupling;
 use indicatif::{ProgressBar, ProgressStyle};
-use learning::ingest::open;
+use learning::ingest::{IngestOptions, open};
 
-use crate::args::CouplingArg;
-use crate::args::ReplayArgs;
-use diagnoser::Failure;
-
-/// How the model pictures are drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum LayoutArg {
-    /// Graphviz `dot` when installed, else the built-in layout.
-    Auto,
-    /// Graphviz `dot` (an error when it cannot run).
-    Graphviz,
-    /// The built-in layered layout.
-    Builtin,
-    /// No pictures.
-    None,
-}
-
-/// Arguments of `gardefou report`.
-#[derive(Debug, Args)]
-pub struct ReportArgs {
-    #[command(flatten)]
-    replay: ReplayArgs,
-    /// The HTML file to write.
-    #[arg(short, long, value_name = "FILE")]
-    output: PathBuf,
-    /// Which flags the replayed safety filter reads.
-    #[arg(long, value_enum, default_value = "def")]
-    coupling: CouplingArg,
-    /// How the pictures of the models are drawn.
-    #[arg(long, value_enum, default_value = "auto")]
-    layout: LayoutArg,
+/// The logs to replay and how: what `diagnose` reads too.
+#[derive(Debug, Clone)]
+pub struct Replay {
+    /// Where the plant file is (named on the page).
+    pub plant_path: PathBuf,
+    /// Where the model is (named on the page and in its errors).
+    pub model_path: PathBuf,
+    /// The logs, each replayed from its own initial values.
+    pub logs: Vec<PathBuf>,
+    /// How the logs are read.
+    pub ingest: IngestOptions,
+    /// The diagnosers' settings.
+    pub options: DiagnoserOptions,
+    /// When the logs end, if later than their own end: deadlines up to it count.
+    pub end: Option<Time>,
 }
 
 /// What a report is made from, shared by `report` and `diagnose --report`.
-pub struct Request<'a> {
+#[derive(Debug, Clone)]
+pub struct Request {
     /// The plant, model and logs, and how to replay them.
-    pub replay: &'a ReplayArgs,
+    pub replay: Replay,
     /// Which flags the filter reads.
     pub coupling: Coupling,
     /// How pictures are drawn (`None`: no pictures).
     pub layout: Option<pictures::Layout>,
 }
 
-/// Runs `gardefou report`.
-pub fn run(args: ReportArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.replay.plant).map_err(Failure::bad)?;
-    let model = Model::from_path(&args.replay.model).map_err(Failure::bad)?;
-    let request = Request {
-        replay: &args.replay,
-        coupling: match args.coupling {
-            CouplingArg::None => Coupling::None,
-            CouplingArg::Def => Coupling::Flags,
-            CouplingArg::DefSuspect => Coupling::FlagsAndSuspects,
-        },
-        layout: match args.layout {
-            LayoutArg::Auto => Some(pictures::Layout::Auto),
-            LayoutArg::Graphviz => Some(pictures::Layout::Graphviz),
-            LayoutArg::Builtin => Some(pictures::Layout::BuiltIn),
-            LayoutArg::None => None,
-        },
-    };
-    let page = build(&plant, &model, &request)?;
-    write_atomically(&args.output, page.as_bytes())?;
-    eprintln!(
-        "report written to {} ({} bytes)",
-        args.output.display(),
-        page.len()
-    );
-    Ok(())
-}
-
 /// Replays every log of `request` and renders the page.
-pub fn build(plant: &Plant, model: &Model, request: &Request<'_>) -> Result<String, Failure> {
+pub fn build(plant: &Plant, model: &Model, request: &Request) -> Result<String, Failure> {
     let bar = if std::io::stderr().is_terminal() {
         let bar = ProgressBar::new_spinner();
         bar.set_style(
@@ -113,37 +74,33 @@ pub fn build(plant: &Plant, model: &Model, request: &Request<'_>) -> Result<Stri
     } else {
         ProgressBar::hidden()
     };
-    let args = request.replay;
-    let ingest = args.ingest(plant);
-    let options = args.options();
+    let replay = &request.replay;
     let setup = collect::Setup {
         plant,
         model,
-        options: &options,
+        options: &replay.options,
         coupling: request.coupling,
     };
     let mut replays = Vec::new();
-    for path in &args.logs {
-        let stream = open(path, plant, &ingest).map_err(Failure::bad)?;
+    for path in &replay.logs {
+        let stream = open(path, plant, &replay.ingest).map_err(Failure::bad)?;
         let name = path.display().to_string();
         bar.set_message(name.clone());
-        let replay = collect::replay(setup, stream, &name, args.end(plant), |n| {
-            bar.set_position(n)
-        })
-        .map_err(|e| Failure::bad(format!("{name}: {e}")))?;
-        replays.push(replay);
+        let log = collect::replay(setup, stream, &name, replay.end, |n| bar.set_position(n))
+            .map_err(|e| Failure::bad(format!("{name}: {e}")))?;
+        replays.push(log);
     }
     bar.finish_and_clear();
     let pictures = match request.layout {
-        Some(layout) => html::pictures(plant, model, &options, layout)
-            .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?,
+        Some(layout) => html::pictures(plant, model, &replay.options, layout)
+            .map_err(|e| Failure::bad(format!("{}: {e}", replay.model_path.display())))?,
         None => Vec::new(),
     };
     Ok(html::page(&html::Page {
         plant,
         model,
-        plant_path: &args.plant,
-        model_path: &args.model,
+        plant_path: &replay.plant_path,
+        model_path: &replay.model_path,
         coupling: request.coupling,
         replays: &replays,
         pictures: &pictures,

@@ -577,3 +577,126 @@ fn constraint_parts(plant: &Plant) -> HashMap<String, Vec<String>> {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use diagnoser::fault::FaultTemplate;
+    use diagnoser::model::Model;
+    use serde_json::Value;
+
+    use super::*;
+    use crate::fixtures::{learned, plant, replay, sorting};
+
+    /// The fault injected in `run`, its onset in nanoseconds, and the index of
+    /// the part whose sensor it concerns, from the run's ground truth.
+    fn truth(plant: &Plant, run: &str) -> (String, Time, usize) {
+        let text = std::fs::read_to_string(sorting(run).join("truth.json"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let truth: Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}"));
+        let fault = &truth["faults"][0];
+        let label = fault["label"].as_str().expect("a label").to_string();
+        let onset = fault["onset"].as_i64().expect("an onset") * plant.time_unit.nanos();
+        let Some(FaultTemplate::Stuck1(sensor)) = plant.fault(&label).map(|f| &f.template) else {
+            panic!("{label} is a sensor stuck at 1 in the plant file");
+        };
+        let id = plant.signals.id(sensor).expect("a signal");
+        let part = plant
+            .parts
+            .iter()
+            .position(|p| p.sensors.contains(&id))
+            .expect("the sensor belongs to a part");
+        (label, onset, part)
+    }
+
+    fn learned_sorting() -> (Plant, Model) {
+        let plant = plant();
+        let model = learned(&plant);
+        (plant, model)
+    }
+
+    #[test]
+    fn a_stuck_sensor_is_found_after_its_onset_and_flagged() {
+        let (plant, model) = learned_sorting();
+        let (label, onset, part) = truth(&plant, "F4");
+        let name = &plant.parts[part].name;
+        let r = replay(&plant, &model, "F4");
+
+        // The part's first verdict away from normal comes at or after the onset,
+        // with the fault among its candidates; no other part leaves normal.
+        let first = r
+            .verdicts
+            .iter()
+            .find(|v| v.verdict != VerdictKind::Normal)
+            .expect("a verdict away from normal");
+        assert_eq!(&first.part, name, "{first:?}");
+        assert!(first.t >= onset, "{} before the onset {onset}", first.t);
+        assert!(first.labels.contains(&label), "{first:?}");
+        assert!(
+            r.verdicts
+                .iter()
+                .all(|v| &v.part == name || v.verdict == VerdictKind::Normal),
+            "{:?}",
+            r.verdicts
+        );
+        // It ends certain of that fault alone, its partition's flag raised.
+        let partition = plant.partition_of(&label).expect("a partition");
+        let flag = format!("def_{}", partition.name);
+        let summary = &r.summary[part];
+        assert_eq!(summary.verdict, VerdictKind::Certain, "{summary:?}");
+        assert_eq!(summary.labels, [label.as_str()]);
+        assert_eq!(summary.flags, [flag.as_str()]);
+        assert!(summary.detected.is_some_and(|t| t >= onset));
+        // The plant view, last, says the same.
+        assert_eq!(r.summary.len(), plant.parts.len() + 1);
+        assert_eq!(r.summary[plant.parts.len()].labels, [label]);
+
+        // Each detection is explained from the part's states around it.
+        assert!(!r.detections.is_empty());
+        for d in &r.detections {
+            assert_eq!(d.part, part);
+            assert!(d.since <= d.verdict.t);
+            assert_eq!(d.now.len(), plant.signals.len());
+            assert!(d.changes.len() <= HISTORY);
+            assert!(d.changes.windows(2).all(|w| w[0].t < w[1].t));
+        }
+        // The flag, raised once, rewrote the filter from then on.
+        assert_eq!(r.rewrites.len(), 1);
+        assert_eq!(r.rewrites[0].flag, flag);
+        assert!(r.rewrites[0].t >= onset);
+        assert!(!r.rewrites[0].sensors.is_empty());
+        assert_eq!(r.rewrites[0].parts, [name.as_str()]);
+    }
+
+    #[test]
+    fn the_fault_free_run_stays_normal() {
+        let (plant, model) = learned_sorting();
+        let r = replay(&plant, &model, "normal");
+        assert!(r.events > 1000, "{} events", r.events);
+        assert!(r.end > r.start);
+        assert!(
+            r.verdicts.iter().all(|v| v.verdict == VerdictKind::Normal),
+            "{:?}",
+            r.verdicts
+        );
+        assert!(r.detections.is_empty());
+        assert!(r.rewrites.is_empty());
+        assert_eq!(r.summary.len(), plant.parts.len() + 1);
+        assert!(
+            r.summary
+                .iter()
+                .all(|s| s.verdict == VerdictKind::Normal && s.detected.is_none()),
+            "{:?}",
+            r.summary
+        );
+        // The safe control never lets a safety constraint hold.
+        assert!(r.trips.is_empty());
+        assert!(r.trip_counts.iter().all(|c| c.1 == 0));
+        // Every edge lies within the log, in order, on the timeline's tick.
+        for edges in &r.edges {
+            assert!(edges.windows(2).all(|w| w[0] < w[1]));
+            assert!(edges.iter().all(|&t| r.start <= t && t <= r.end));
+            assert!(edges.iter().all(|&t| (t - r.start) % r.tick == 0));
+        }
+        assert_eq!(r.tick, 1_000_000, "a log in whole milliseconds");
+    }
+}

@@ -2276,7 +2276,6 @@ fn esc(s: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use std::path::{Path, PathBuf};
     use std::time::Instant;
 
     use diagnoser::Plant;
@@ -2284,35 +2283,10 @@ mod tests {
     use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
     use diagnoser::model::Model;
     use learning::dot::part_to_dot;
-    use learning::ingest::{IngestOptions, open};
-    use learning::learn::{LearnOptions, Learner};
     use proptest::prelude::*;
 
     use super::*;
-
-    fn sorting() -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/data/sorting/normal")
-    }
-
-    fn plant() -> Plant {
-        Plant::from_path(&sorting().join("plant.toml")).unwrap_or_else(|e| panic!("{e}"))
-    }
-
-    /// A model learned from the sorting plant's normal log, as `gardefou learn` does.
-    fn learned(plant: &Plant) -> Model {
-        let ingest = IngestOptions {
-            time_unit: plant.time_unit,
-            ..IngestOptions::default()
-        };
-        let mut learner =
-            Learner::new(plant, LearnOptions::default()).unwrap_or_else(|e| panic!("{e}"));
-        let log =
-            open(&sorting().join("events.csv"), plant, &ingest).unwrap_or_else(|e| panic!("{e}"));
-        learner
-            .learn_log(log, |_| {})
-            .unwrap_or_else(|e| panic!("{e}"));
-        learner.finish()
-    }
+    use crate::fixtures::{learned, plant};
 
     fn turntable_dot(model: &Model) -> String {
         let part = model

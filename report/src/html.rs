@@ -1114,3 +1114,101 @@ fn models_section(h: &mut String, p: &Page<'_>) {
     }
     h.push_str("</section>\n");
 }
+
+#[cfg(test)]
+mod tests {
+    use diagnoser::Plant;
+
+    use super::*;
+    use crate::fixtures::{learned, replay, sorting};
+
+    /// Markup where the plant file, the log and the diagnosers put free text.
+    const PLANT: &str = "<script>alert('plant')</script>";
+    const PART: &str = "turn<script>alert('part')</script>table";
+    const DESCRIPTION: &str = "<script>alert('C5')</script> at unloading position";
+    const REASON: &str = "<script>alert('reason')</script>";
+    const PATH: &str = "<script>alert('path')</script>/plant.toml";
+
+    /// The sorting line with markup in its name, its turntable's name and
+    /// C5's description.
+    fn hostile_plant() -> Plant {
+        let path = sorting("normal").join("plant.toml");
+        let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{e}"));
+        let text = text
+            .replacen("name = \"sorting\"", &format!("name = \"{PLANT}\""), 1)
+            .replacen("name = \"turntable\"", &format!("name = \"{PART}\""), 1)
+            .replacen(
+                "description = \"turntable at unloading position\"",
+                &format!("description = \"{DESCRIPTION}\""),
+                1,
+            );
+        let plant = Plant::parse(&text, &path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(plant.name, PLANT);
+        assert!(plant.parts.iter().any(|p| p.name == PART));
+        plant
+    }
+
+    #[test]
+    fn markup_in_the_inputs_stays_text() {
+        let plant = hostile_plant();
+        let model = learned(&plant);
+        // F4 (C5 stuck at 1): the turntable's detection prints C5's description
+        // and the verdict's reason in its explanation.
+        let mut r = replay(&plant, &model, "F4");
+        let turntable = plant.parts.iter().position(|p| p.name == PART);
+        assert!(r.detections.iter().any(|d| Some(d.part) == turntable));
+        for v in r
+            .verdicts
+            .iter_mut()
+            .chain(r.detections.iter_mut().map(|d| &mut d.verdict))
+        {
+            v.reason = REASON.to_string();
+        }
+        let options = DiagnoserOptions::default();
+        let pictures =
+            pictures(&plant, &model, &options, Layout::BuiltIn).unwrap_or_else(|e| panic!("{e}"));
+        let html = page(&Page {
+            plant: &plant,
+            model: &model,
+            plant_path: Path::new(PATH),
+            model_path: Path::new("model.json"),
+            coupling: Coupling::Flags,
+            replays: &[r],
+            pictures: &pictures,
+        });
+
+        // The markup is printed as text wherever the page shows it.
+        let (markup, rest) = html
+            .split_once("<script type=\"application/json\" id=\"gardefou-data\">")
+            .expect("the timeline data");
+        for text in [PLANT, PART, DESCRIPTION, REASON, PATH] {
+            assert!(markup.contains(&escape(text)), "{text} not shown");
+        }
+        assert!(!markup.contains("<script"), "a script tag from the inputs");
+        // The timeline data ends where the page ends it, whole: no text in it
+        // closes the element.
+        let (data, rest) = rest.split_once("</script>").expect("the data's end");
+        let data: Value = serde_json::from_str(data).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(data["plant"], PLANT);
+        let part = data["logs"][0]["parts"]
+            .as_array()
+            .and_then(|parts| parts.iter().find(|p| p["name"] == PART))
+            .expect("the turntable's data");
+        assert!(
+            part["signals"]
+                .as_array()
+                .is_some_and(|s| s.iter().any(|s| s["description"] == DESCRIPTION))
+        );
+        assert!(
+            part["verdicts"]
+                .as_array()
+                .is_some_and(|v| !v.is_empty() && v.iter().all(|v| v["reason"] == REASON))
+        );
+        // Then only the page's own script, and the pictures, which name the part.
+        let models = rest
+            .strip_prefix(&format!("\n<script>\n{JS}\n</script>"))
+            .expect("the page's script");
+        assert!(models.contains(&escape(PART)));
+        assert!(!models.contains("<script"), "a script tag from the inputs");
+    }
+}
