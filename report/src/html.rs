@@ -270,7 +270,6 @@ fn summary_table(h: &mut String, plant: &Plant, r: &LogReplay, i: usize) {
         );
     }
     h.push_str("</tbody></table>\n");
-    h.push_str("</tbody></table>\n");
 }
 
 /// Explanation ids, for links from the timeline data: detection k is
@@ -1210,5 +1209,36 @@ mod tests {
             .expect("the page's script");
         assert!(models.contains(&escape(PART)));
         assert!(!models.contains("<script"), "a script tag from the inputs");
+    }
+
+    /// Every element the page opens is closed as often, outside the inline
+    /// script and data, which hold no markup of the page's own.
+    #[test]
+    fn every_element_opened_is_closed() {
+        let plant =
+            Plant::from_path(&sorting("F4").join("plant.toml")).unwrap_or_else(|e| panic!("{e}"));
+        let model = learned(&plant);
+        let r = replay(&plant, &model, "F4");
+        let options = DiagnoserOptions::default();
+        let pictures =
+            pictures(&plant, &model, &options, Layout::BuiltIn).unwrap_or_else(|e| panic!("{e}"));
+        let html = page(&Page {
+            plant: &plant,
+            model: &model,
+            plant_path: Path::new("plant.toml"),
+            model_path: Path::new("model.json"),
+            coupling: Coupling::Flags,
+            replays: &[r],
+            pictures: &pictures,
+        });
+        let markup = html.split("<script").next().unwrap_or_default();
+        for tag in [
+            "table", "tbody", "tr", "section", "article", "ul", "svg", "g", "p",
+        ] {
+            let opened = markup.matches(&format!("<{tag}>")).count()
+                + markup.matches(&format!("<{tag} ")).count();
+            let closed = markup.matches(&format!("</{tag}>")).count();
+            assert_eq!(opened, closed, "<{tag}>: {opened} opened, {closed} closed");
+        }
     }
 }
