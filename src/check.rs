@@ -15,10 +15,8 @@ use diagnoser::diagnosis::diagnosability::{
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::faudes;
 use diagnoser::model::Model;
-use diagnoser::{Plant, Time, time};
+use diagnoser::{Failure, Plant, Time, time};
 use filter_coupling::simplify::PartFilter;
-
-use diagnoser::Failure;
 
 /// Arguments of `gardefou check`.
 #[derive(Debug, Args)]

@@ -17,16 +17,14 @@ use std::path::Path;
 use clap::Args;
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sorting::plant;
-use diagnoser::{MS, SECOND, Time, TimeFormat, TimeUnit};
+use diagnoser::{Failure, MS, SECOND, Time, TimeFormat, TimeUnit};
 use filter_coupling::filter::Coupling;
 use learning::ingest::LogStream;
 use learning::learn::{LearnOptions, Learner};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
-
-use diagnoser::Failure;
 use runtime::closed_loop::{self, LoopOutcome, LoopRun};
+use serde::Serialize;
 
 /// Arguments of `gardefou demo`.
 #[derive(Debug, Args)]

@@ -6,11 +6,9 @@ use std::path::PathBuf;
 use clap::Args;
 use diagnoser::diagnosis::{PartSummary, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
-use diagnoser::{Plant, TimeFormat};
+use diagnoser::{Failure, Plant, TimeFormat};
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::ingest::open;
-
-use diagnoser::Failure;
 
 use crate::args::ReplayArgs;
 

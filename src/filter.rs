@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Subcommand, ValueEnum};
 use diagnoser::model::Model;
-use diagnoser::{Plant, TimeFormat, TimeUnit};
+use diagnoser::{Failure, Plant, TimeFormat, TimeUnit};
 use filter_coupling::filter::{Coupling, Filter, Mode, sensor_partition};
 use filter_coupling::rewrite::{Estimate, RewriteOptions, rewrite};
 use filter_coupling::st::{StOptions, generate};
@@ -15,8 +15,6 @@ use filter_coupling::st::{StOptions, generate};
 use learning::ingest::{IngestOptions, LogFormat, open};
 
 use crate::args::CouplingArg;
-use diagnoser::Failure;
-
 /// Arguments of `gardefou filter`.
 #[derive(Debug, Args)]
 pub struct FilterArgs {

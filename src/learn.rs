@@ -6,15 +6,13 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use diagnoser::model::{Model, SensorKind};
-use diagnoser::{Plant, Time, TimeUnit, time};
+use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::check::check;
 use learning::dot::part_to_dot;
 use learning::ingest::{IngestOptions, LogFormat, open};
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
-
-use diagnoser::Failure;
 
 /// Arguments of `gardefou learn`.
 #[derive(Debug, Args)]

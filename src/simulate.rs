@@ -12,15 +12,13 @@ use datasets::output::{RunFiles, write_run};
 use datasets::sim::SimConfig;
 use datasets::{cylinders, sorting};
 use diagnoser::model::Model;
-use diagnoser::{MS, Time, time};
+use diagnoser::{Failure, MS, Time, time};
 use filter_coupling::filter::{Coupling, Filter};
 use indicatif::{ProgressBar, ProgressStyle};
-
-use diagnoser::Failure;
-
-use crate::args::CouplingArg;
 use runtime::closed_loop::CoupledPlc;
 use runtime::virtual_plc::{self, VirtualPlc};
+
+use crate::args::CouplingArg;
 
 /// Which plant to simulate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

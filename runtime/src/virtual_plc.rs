@@ -29,7 +29,7 @@ use std::time::{Duration, Instant};
 use datasets::sim::{Damage, SimConfig, Stepper};
 use diagnoser::model::Model;
 use diagnoser::plant::{ModbusMap, ModbusTable};
-use diagnoser::{MS, Plant, Time};
+use diagnoser::{Failure, MS, Plant, Time};
 use filter_coupling::filter::{Coupling, Filter};
 use serde::Serialize;
 use tokio::net::{TcpListener, TcpStream};
@@ -38,8 +38,6 @@ use tokio_modbus::server::tcp::Server;
 use tokio_modbus::{ExceptionCode, Request, Response};
 
 use crate::closed_loop::{CoupledPlc, Watched};
-use diagnoser::Failure;
-
 /// Most coils or discrete inputs one read may ask for (Modbus application
 /// protocol, functions 1 and 2).
 const MAX_READ: u16 = 2000;

@@ -36,13 +36,11 @@
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::Duration;
 
-use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
+use diagnoser::{Event, Failure, Plant, SignalId, Time, TimeFormat};
 use learning::ingest::candump::PdoDecoder;
 use tokio::sync::mpsc;
 
 use super::source::{Item, Link, LiveClock, Source};
-use diagnoser::Failure;
-
 /// Size of SocketCAN's `struct can_frame` (`CAN_MTU`).
 pub const CAN_FRAME_SIZE: usize = 16;
 /// `CAN_EFF_FLAG`: the identifier is extended (29 bits).

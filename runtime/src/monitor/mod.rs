@@ -39,13 +39,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use diagnoser::diagnosis::{PlantDiagnoser, Verdict};
-use diagnoser::{Event, Plant, Time, TimeFormat};
+use diagnoser::{Event, Failure, Plant, Time, TimeFormat};
 use learning::ingest::IngestOptions;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
 use crate::flags::FlagBoard;
-use diagnoser::Failure;
 use source::{FlagImage, Item, Link, Source};
 use status::Status;
 

@@ -45,11 +45,9 @@ use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
 
 use diagnoser::plant::{ModbusMap, ModbusTable};
-use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
+use diagnoser::{Event, Failure, Plant, SignalId, Time, TimeFormat};
 
 use super::source::{Item, Link, LiveClock, Source};
-use diagnoser::Failure;
-
 /// Longest wait for a reply: a poll unanswered this long is skipped, and a
 /// link that answers nothing this long is lost.
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(3);

@@ -10,12 +10,10 @@
 
 use std::path::Path;
 
-use diagnoser::{Event, Plant, Time, TimeFormat, TimeUnit};
+use diagnoser::{Event, Failure, Plant, Time, TimeFormat, TimeUnit};
 use learning::ingest::{IngestOptions, open};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
-
-use diagnoser::Failure;
 
 /// What a source sends.
 #[derive(Debug)]
