@@ -19,8 +19,8 @@ use datasets::sorting::{plant, simulate_in_memory};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
 use diagnoser::model::Model;
 use diagnoser::{MS, Plant, SECOND, Time, TimeFormat};
-use learning::ingest::LogStream;
 use learning::learn::{LearnOptions, Learner};
+use logs::LogStream;
 
 /// Simulated hours of each replayed log.
 const HOURS: Time = 100;

@@ -2,7 +2,7 @@
 # candump-qemu.sh — capture a real `candump -L` log from a virtual CAN bus.
 #
 # OPT-IN, MANUAL: no CI job runs this script, and no test depends on it. The
-# candump fixtures under learning/tests/fixtures/candump/ are written by hand in
+# candump fixtures under logs/tests/fixtures/candump/ are written by hand in
 # candump's exact output format; this script is how to check that format
 # against the real can-utils on a kernel that has CAN, which the development
 # machines (and CI containers) usually lack: their kernels have no `vcan`
@@ -45,7 +45,7 @@
 #       /mnt/gardefou/scripts/candump-qemu.sh capture /mnt/gardefou/target/vcan0.log
 #       poweroff
 #   - the log is then in target/vcan0.log on the host. Compare its lines with
-#     learning/tests/fixtures/candump/good.log, and read it with a plant file
+#     logs/tests/fixtures/candump/good.log, and read it with a plant file
 #     holding the [can] table above.
 #
 # Nothing here is run by `cargo test`; `bash -n scripts/candump-qemu.sh` is the

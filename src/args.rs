@@ -7,7 +7,7 @@ use clap::{Args, ValueEnum};
 use diagnoser::diagnosis::DiagnoserOptions;
 use diagnoser::{Plant, Time, TimeUnit, time};
 use filter_coupling::filter::Coupling;
-use learning::ingest::{IngestOptions, LogFormat};
+use logs::{IngestOptions, LogFormat};
 
 /// What `diagnose` and `report` both read: the plant, the model, the logs, and
 /// how to replay them.

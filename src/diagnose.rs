@@ -8,7 +8,7 @@ use diagnoser::diagnosis::{PartSummary, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, TimeFormat};
 use indicatif::{ProgressBar, ProgressStyle};
-use learning::ingest::open;
+use logs::open;
 
 use crate::args::ReplayArgs;
 

@@ -12,7 +12,7 @@ use filter_coupling::filter::{Coupling, Filter, Mode, sensor_partition};
 use filter_coupling::rewrite::{Estimate, RewriteOptions, rewrite};
 use filter_coupling::st::{StOptions, generate};
 
-use learning::ingest::{IngestOptions, LogFormat, open};
+use logs::{IngestOptions, LogFormat, open};
 
 use crate::args::CouplingArg;
 /// Arguments of `gardefou filter`.

@@ -10,9 +10,9 @@ use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::check::check;
 use learning::dot::part_to_dot;
-use learning::ingest::{IngestOptions, LogFormat, open};
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
+use logs::{IngestOptions, LogFormat, open};
 
 /// Arguments of `gardefou learn`.
 #[derive(Debug, Args)]

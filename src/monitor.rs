@@ -10,7 +10,7 @@ use clap::Args;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
-use learning::ingest::{IngestOptions, LogFormat};
+use logs::{IngestOptions, LogFormat};
 use runtime::monitor::{Config, SourceConfig};
 
 /// Arguments of `gardefou monitor`.

@@ -355,10 +355,10 @@ fn write_parquet_archive(
     plant: &diagnoser::Plant,
     end: Time,
 ) -> Result<(), Failure> {
-    let log = diagnoser::log::read_events(&dir.join("events.csv"), &plant.signals, plant.time_unit)
+    let log = logs::read_events(&dir.join("events.csv"), &plant.signals, plant.time_unit)
         .map_err(|e| Failure::Io(e.to_string()))?;
     let tmp = dir.join(format!(".intervals.parquet.{}", std::process::id()));
-    learning::ingest::write_intervals_parquet(&log, &plant.signals, &tmp, end)
+    logs::write_intervals_parquet(&log, &plant.signals, &tmp, end)
         .and_then(|()| std::fs::rename(&tmp, dir.join("intervals.parquet")))
         .map_err(|e| {
             let _ = std::fs::remove_file(&tmp);

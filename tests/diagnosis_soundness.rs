@@ -11,8 +11,8 @@ use diagnoser::diagnosis::fusion::PLANT_VIEW;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
 use diagnoser::{MS, Plant, SECOND, TimeFormat, TimeUnit};
-use learning::ingest::LogStream;
 use learning::learn::{LearnOptions, Learner};
+use logs::LogStream;
 use proptest::prelude::*;
 
 const MINUTE: i64 = 60 * SECOND;

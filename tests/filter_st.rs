@@ -24,8 +24,8 @@ use diagnoser::model::Model;
 use diagnoser::{MS, Plant, SECOND, SignalKind, Time};
 use filter_coupling::filter::{Coupling, Filter, Mode};
 use filter_coupling::st::{StOptions, generate};
-use learning::ingest::{IngestOptions, open};
 use learning::learn::{LearnOptions, Learner};
+use logs::{IngestOptions, open};
 
 use st::Fb;
 

@@ -5,8 +5,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use diagnoser::log::{read_events, read_intervals_as_events};
 use diagnoser::{MS, Plant, TimeUnit};
+use logs::{read_events, read_intervals_as_events};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/data")
@@ -87,7 +87,7 @@ fn shipped_logs_read_back_with_their_ground_truth() {
             "{}",
             run.display()
         );
-        let events = diagnoser::log::EventLog {
+        let events = logs::EventLog {
             end: None,
             ..events
         };

@@ -4,8 +4,8 @@ use std::fs;
 use std::path::Path;
 use std::process::{Command, Output};
 
-use diagnoser::log::{read_events, read_intervals_as_events};
 use diagnoser::{Plant, SECOND, TimeUnit};
+use logs::{read_events, read_intervals_as_events};
 
 fn gardefou(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gardefou"))
@@ -136,7 +136,7 @@ fn run_directory_is_complete_and_consistent() {
             .expect("intervals read back");
     // The events form ends with its end row, at the last scan.
     assert_eq!(events.end, Some(5 * 60 * SECOND));
-    let events = diagnoser::log::EventLog {
+    let events = logs::EventLog {
         end: None,
         ..events
     };

@@ -9,8 +9,8 @@ use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use diagnoser::log::{EventWriter, IntervalWriter, ScanWriter};
 use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
+use logs::{EventWriter, IntervalWriter, ScanWriter};
 
 use crate::inject::{time_value, truth_json};
 use crate::sim::{Controller, Physics, ScanSink, SimConfig, SimReport, run_with_showing};

@@ -1,11 +1,11 @@
-//! Core types of gardefou: time, signals, events, plant files, fault templates and
-//! the log forms (events, intervals, scans).
+//! Core types of gardefou (time, signals, events, plant files, fault templates,
+//! models) and the diagnosers that run on them.
 //!
 //! Every other crate of the workspace depends on this one; it depends on none of
 //! them. It is kept free of heavy dependencies (no polars, no tokio) so that it
 //! builds and tests fast.
 //!
-//! It is not for: ingesting logs at scale (that is `learning`), evaluating or
+//! It is not for: reading or writing logs (that is `logs`), evaluating or
 //! rewriting the safety filter (`filter-coupling`), or simulating plants
 //! (`datasets`).
 
@@ -14,7 +14,6 @@ pub mod error;
 pub mod expr;
 pub mod faudes;
 pub mod fault;
-pub mod log;
 pub mod model;
 pub mod plant;
 pub mod signal;

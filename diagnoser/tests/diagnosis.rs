@@ -10,9 +10,9 @@ use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::diagnosability::{check, separate_under_any_order};
 use diagnoser::diagnosis::fusion::Coordinator;
 use diagnoser::diagnosis::{DiagnoserOptions, Engine, PlantDiagnoser, Verdict, VerdictKind};
-use diagnoser::log::read_events;
 use diagnoser::model::Model;
 use diagnoser::{Plant, TimeUnit};
+use logs::read_events;
 
 fn repo(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)

@@ -153,8 +153,8 @@ fn as_log(sink: &MemorySink, end: diagnoser::Time) -> evaluation::runs::Log {
 fn on_a_generated_plant_a_fault_after_an_unknown_episode_is_still_labelled() {
     use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, VerdictKind};
     use evaluation::judge::{part_of, replay};
-    use learning::ingest::LogStream;
     use learning::learn::{LearnOptions, Learner};
+    use logs::LogStream;
 
     let onset = 900 * SECOND;
     let mut tried = 0;

@@ -10,8 +10,8 @@ use std::collections::HashMap;
 use diagnoser::model::{Model, PartModel};
 use diagnoser::{Located, Location, Plant, Time};
 
-use crate::ingest::LogStream;
 use crate::replay::{Change, PartRoutes};
+use logs::LogStream;
 
 /// A deviation from the model.
 #[derive(Debug, Clone, PartialEq)]

@@ -15,8 +15,8 @@ use diagnoser::model::{
 };
 use diagnoser::{Located, Plant, SignalKind, Time};
 
-use crate::ingest::LogStream;
 use crate::replay::PartRoutes;
+use logs::LogStream;
 
 /// Settings of learning.
 #[derive(Debug, Clone, Copy, PartialEq)]

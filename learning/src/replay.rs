@@ -3,7 +3,7 @@
 
 use diagnoser::{Event, Located, SignalId, Time};
 
-use crate::ingest::Batches;
+use logs::Batches;
 
 /// One part's change in one scan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -70,7 +70,7 @@ use std::fmt::Write as _;
 
 use diagnoser::{Event, Located, Location, MS, SECOND, SignalId, SignalKind, SignalTable, Time};
 
-use crate::ingest::LogStream;
+use logs::LogStream;
 
 /// Thresholds of the suggestion (see the [module documentation](self)).
 #[derive(Debug, Clone, PartialEq)]

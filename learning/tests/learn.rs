@@ -9,8 +9,8 @@ use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
 use diagnoser::model::{Model, PartModel};
 use diagnoser::{MS, SECOND, Time, TimeFormat, TimeUnit};
 use learning::check::check;
-use learning::ingest::{LogFormat, LogStream};
 use learning::learn::{LearnOptions, Learner};
+use logs::{LogFormat, LogStream};
 
 fn simulate(duration: Time, seed: u64, faults: &[&str]) -> MemorySink {
     let plant = plant();

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
 use diagnoser::{MS, Plant, SECOND, SignalKind, TimeFormat, TimeUnit};
-use learning::ingest::{LogFormat, LogStream};
 use learning::suggest::{SuggestOptions, Suggestion, suggest_parts, to_toml};
+use logs::{LogFormat, LogStream};
 
 /// One simulated hour of normal operation, seed 7, as a log stream.
 fn sorting_hour() -> LogStream {

@@ -12,7 +12,7 @@ use diagnoser::model::Model;
 use diagnoser::{Event, Plant, Time, TimeFormat};
 use filter_coupling::filter::{Coupling, Filter};
 use filter_coupling::synthesis::{cofactor, simplify};
-use learning::ingest::LogStream;
+use logs::LogStream;
 
 /// Scans of history kept for "the last changes" of an explanation.
 const HISTORY: usize = 6;

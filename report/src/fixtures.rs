@@ -7,8 +7,8 @@ use diagnoser::Plant;
 use diagnoser::diagnosis::DiagnoserOptions;
 use diagnoser::model::Model;
 use filter_coupling::filter::Coupling;
-use learning::ingest::{IngestOptions, open};
 use learning::learn::{LearnOptions, Learner};
+use logs::{IngestOptions, open};
 
 use crate::collect::{self, LogReplay, Setup};
 

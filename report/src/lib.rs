@@ -30,7 +30,7 @@ use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, Time};
 use filter_coupling::filter::Coupling;
 use indicatif::{ProgressBar, ProgressStyle};
-use learning::ingest::{IngestOptions, open};
+use logs::{IngestOptions, open};
 
 /// The logs to replay and how: what `diagnose` reads too.
 #[derive(Debug, Clone)]

@@ -37,7 +37,7 @@ use std::net::{SocketAddr, ToSocketAddrs};
 use std::time::Duration;
 
 use diagnoser::{Event, Failure, Plant, SignalId, Time, TimeFormat};
-use learning::ingest::candump::PdoDecoder;
+use logs::candump::PdoDecoder;
 use tokio::sync::mpsc;
 
 use super::source::{Item, Link, LiveClock, Source};
@@ -572,7 +572,7 @@ impl Pdos {
 mod tests {
     use std::path::Path;
 
-    use learning::ingest::IngestOptions;
+    use logs::IngestOptions;
 
     use super::*;
 
@@ -660,7 +660,7 @@ mod tests {
             .map(|(line, _)| format!("(1436509052.000000) vcan0 {line}\n"))
             .collect();
         std::fs::write(&log, text).expect("writes the log");
-        let from_file = learning::ingest::candump::open(&log, &plant, &IngestOptions::default())
+        let from_file = logs::candump::open(&log, &plant, &IngestOptions::default())
             .expect("the candump log opens");
 
         let mut pdos = Pdos::new(

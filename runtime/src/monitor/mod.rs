@@ -40,7 +40,7 @@ use std::time::Duration;
 
 use diagnoser::diagnosis::{PlantDiagnoser, Verdict};
 use diagnoser::{Event, Failure, Plant, Time, TimeFormat};
-use learning::ingest::IngestOptions;
+use logs::IngestOptions;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
@@ -783,7 +783,7 @@ mod tests {
 
     use diagnoser::diagnosis::DiagnoserOptions;
     use diagnoser::model::Model;
-    use learning::ingest::open;
+    use logs::open;
 
     use super::*;
 

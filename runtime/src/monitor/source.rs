@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use diagnoser::{Event, Failure, Plant, Time, TimeFormat, TimeUnit};
-use learning::ingest::{IngestOptions, open};
+use logs::{IngestOptions, open};
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
@@ -108,7 +108,7 @@ impl LiveClock {
 pub struct Replay {
     /// Unit of numeric timestamps.
     unit: TimeUnit,
-    stream: Option<learning::ingest::LogStream>,
+    stream: Option<logs::LogStream>,
 }
 
 impl Replay {

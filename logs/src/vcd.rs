@@ -47,7 +47,6 @@
 //! Errors name the file, line and column of the offending token.
 
 use std::collections::HashMap;
-use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
@@ -97,8 +96,7 @@ pub fn looks_like(head: &str) -> bool {
 /// timestamps are never split between batches). `options.time_unit` is not
 /// used: the dump's `$timescale` gives the unit.
 pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
-    let file = File::open(path)
-        .map_err(|e| Located::new(Location::new(path, 0, 0), format!("cannot open log: {e}")))?;
+    let file = crate::rows::open_file(path)?;
     let mut reader = Reader::new(BufReader::new(file), path, plant, options.batch_rows);
     let unit = reader.header(plant)?;
 
@@ -166,10 +164,7 @@ impl<R: BufRead> Tokens<R> {
                 Ok(buf) => buf,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
                 Err(e) => {
-                    return Err(Located::new(
-                        Location::new(&self.path, self.line, 0),
-                        format!("cannot read log: {e}"),
-                    ));
+                    return Err(crate::rows::cannot_read(&self.path, self.line, &e));
                 }
             };
             if buf.is_empty() {
@@ -583,10 +578,7 @@ impl<R: BufRead> Reader<R> {
                     (None, _) => Err(self.tokens.error_at(
                         code_line,
                         code_column,
-                        format!(
-                            "identifier code '{}' is not declared by any $var",
-                            shown(self.tokens.text())
-                        ),
+                        undeclared(self.tokens.text()),
                     )),
                     (Some(Var::Skipped), _) => Ok(Step::Other),
                     (Some(Var::Signals(_)), Err(what)) => Err(self.tokens.error_at(
@@ -684,10 +676,7 @@ impl<R: BufRead> Reader<R> {
                 return Err(self.tokens.error_at(
                     code_at.0,
                     code_at.1,
-                    format!(
-                        "identifier code '{}' is not declared by any $var",
-                        shown(&String::from_utf8_lossy(code))
-                    ),
+                    undeclared(&String::from_utf8_lossy(code)),
                 ));
             }
             Some(Var::Skipped) => return Ok(()),
@@ -757,6 +746,14 @@ fn shown(text: &str) -> String {
         Some((end, _)) => format!("{}…", &text[..end]),
         None => text.to_string(),
     }
+}
+
+/// The message for a value change of an identifier code no `$var` declares.
+fn undeclared(code: &str) -> String {
+    format!(
+        "identifier code '{}' is not declared by any $var",
+        shown(code)
+    )
 }
 
 #[cfg(test)]

@@ -3,11 +3,11 @@
 use std::io::Write as _;
 use std::path::Path;
 
-use diagnoser::log::{
+use diagnoser::{Event, MS, SECOND, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
+use logs::{
     EventReader, EventWriter, Interval, IntervalReader, IntervalWriter, ScanReader, ScanWriter,
     TimeFormatChoice, read_events, read_intervals_as_events, read_scans_as_events,
 };
-use diagnoser::{Event, MS, SECOND, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
 
 fn turntable() -> SignalTable {
     let mut table = SignalTable::new();

@@ -4,7 +4,7 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
-use diagnoser::log::EventLog;
+use crate::EventLog;
 use diagnoser::{SignalTable, Time, TimeFormat, TimeUnit};
 use polars::prelude::{Column, DataFrame, DataType, Field, ParquetWriter, PolarsError, Schema};
 
@@ -22,7 +22,7 @@ const ROWS_PER_GROUP: usize = 1 << 16;
 /// the recording, which must not be before the log's last event or its start.
 ///
 /// Rows come in `t_end` order (a row is written when its interval closes, as
-/// `diagnoser::log::IntervalWriter` does), which [`super::open`] reads back in
+/// `logs::IntervalWriter` does), which [`super::open`] reads back in
 /// bounded memory; memory here is bounded by one row group. Reading the file
 /// with [`super::open`] gives back `log.start`, `log.initial` and `log.events`.
 pub fn write_intervals_parquet(
@@ -31,17 +31,12 @@ pub fn write_intervals_parquet(
     path: &Path,
     end: Time,
 ) -> io::Result<()> {
-    let invalid = |message: String| io::Error::new(io::ErrorKind::InvalidInput, message);
     if log.initial.len() != signals.len() {
-        return Err(invalid(format!(
-            "{} initial values for {} signals",
-            log.initial.len(),
-            signals.len()
-        )));
+        return Err(crate::csv::wrong_initial(log.initial.len(), signals.len()));
     }
     let last = log.events.last().map_or(log.start, |e| e.t.max(log.start));
     if end < last {
-        return Err(invalid(format!(
+        return Err(crate::csv::invalid_input(format!(
             "the end of the recording, {}, is before the log's last time {}",
             log.format.format(end),
             log.format.format(last)
@@ -64,13 +59,13 @@ pub fn write_intervals_parquet(
     for event in &log.events {
         let i = event.signal.index();
         let Some(interval) = open.get_mut(i) else {
-            return Err(invalid(format!("no signal with id {}", event.signal.0)));
+            return Err(crate::csv::no_signal(event.signal));
         };
         if interval.0 == event.value {
             continue;
         }
         if event.t < interval.1 {
-            return Err(invalid(format!(
+            return Err(crate::csv::invalid_input(format!(
                 "events out of order: signal '{}' changes at {}, before {}",
                 signals.name(event.signal),
                 log.format.format(event.t),

@@ -1,5 +1,5 @@
-//! Logs past the memory budget are read by the buffered reader; it must give
-//! exactly what the polars path gives.
+//! A log read as a stream, batch by batch, gives exactly what the whole-file
+//! readers give.
 
 use std::fs::File;
 use std::io::BufWriter;
@@ -7,13 +7,11 @@ use std::path::{Path, PathBuf};
 
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
-use diagnoser::log::ScanWriter;
 use diagnoser::{Event, MS, SECOND, TimeFormat, TimeUnit};
-use learning::ingest::{IngestOptions, open};
+use logs::{IngestOptions, ScanWriter, open, read_events, read_scans_as_events};
 
-fn read_all(path: &Path, budget: u64) -> (Vec<bool>, i64, Vec<Event>) {
+fn read_all(path: &Path) -> (Vec<bool>, i64, Vec<Event>) {
     let options = IngestOptions {
-        memory_budget: budget,
         batch_rows: 500,
         ..IngestOptions::default()
     };
@@ -33,16 +31,16 @@ fn shipped(rel: &str) -> PathBuf {
 }
 
 #[test]
-fn buffered_events_reader_matches_polars() {
+fn streamed_events_match_the_whole_file_reader() {
     let path = shipped("sorting/normal/events.csv");
-    let fast = read_all(&path, u64::MAX);
-    let buffered = read_all(&path, 0);
-    assert!(fast.2.len() > 1000);
-    assert_eq!(fast, buffered);
+    let whole = read_events(&path, &plant().signals, TimeUnit::Ms).expect("reads");
+    let streamed = read_all(&path);
+    assert!(streamed.2.len() > 1000);
+    assert_eq!(streamed, (whole.initial, whole.start, whole.events));
 }
 
 #[test]
-fn buffered_scans_reader_matches_polars() {
+fn streamed_scans_match_the_whole_file_reader_and_the_run() {
     let mut line = SortingLine::new(SortingConfig::default());
     let mut ctl = SynthesisedControl::new(line.ids());
     let cfg = SimConfig {
@@ -74,15 +72,15 @@ fn buffered_scans_reader_matches_polars() {
         t += 10 * MS;
     }
     w.finish().expect("flush");
-    let fast = read_all(&path, u64::MAX);
-    let buffered = read_all(&path, 0);
-    assert_eq!(fast, buffered);
-    assert_eq!(buffered.2, sink.events);
-    assert_eq!(buffered.0, sink.initial);
+    let whole = read_scans_as_events(&path, &signals, TimeUnit::Ms).expect("reads");
+    let streamed = read_all(&path);
+    assert_eq!(streamed, (whole.initial, whole.start, whole.events));
+    assert_eq!(streamed.2, sink.events);
+    assert_eq!(streamed.0, sink.initial);
 }
 
 #[test]
-fn buffered_reader_reports_bad_rows_with_their_line() {
+fn a_streamed_log_reports_bad_rows_with_their_line() {
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("bad.csv");
     let mut text = String::from("t,signal,value\n");
@@ -91,11 +89,7 @@ fn buffered_reader_reports_bad_rows_with_their_line() {
     }
     text.push_str("10,C4,1\n20,C4,perhaps\n");
     std::fs::write(&path, text).expect("write");
-    let options = IngestOptions {
-        memory_budget: 0,
-        ..IngestOptions::default()
-    };
-    let log = open(&path, &plant(), &options).expect("opening rows are fine");
+    let log = open(&path, &plant(), &IngestOptions::default()).expect("opening rows are fine");
     let err = log
         .batches
         .filter_map(Result::err)

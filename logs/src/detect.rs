@@ -1,13 +1,11 @@
 //! Telling a log's form from its first bytes.
 
-use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 use diagnoser::{Located, Location};
 
-use super::LogFormat;
-use super::columnar::parquet_schema;
+use crate::LogFormat;
 
 /// The longest first line looked at: a header or a first record is far shorter,
 /// and a binary file must not be read whole looking for a line end.
@@ -27,12 +25,7 @@ const MAX_LINE: u64 = 1 << 16;
 /// Fails with an error naming the file when the file cannot be read or matches
 /// none of these.
 pub fn detect_format(path: &Path) -> Result<LogFormat, Located> {
-    let file = File::open(path).map_err(|e| {
-        Located::new(
-            Location::new(path, 0, 0),
-            format!("cannot open the log: {e}"),
-        )
-    })?;
+    let file = crate::rows::open_file(path)?;
     let mut reader = BufReader::new(file);
     let head = reader.fill_buf().map_err(|e| read_error(path, &e))?;
     if head.starts_with(b"PAR1") {
@@ -90,10 +83,7 @@ pub fn detect_format(path: &Path) -> Result<LogFormat, Located> {
 }
 
 fn read_error(path: &Path, e: &std::io::Error) -> Located {
-    Located::new(
-        Location::new(path, 0, 0),
-        format!("cannot read the log: {e}"),
-    )
+    crate::rows::cannot_read(path, 0, e)
 }
 
 fn unknown(path: &Path, line: usize, why: &str) -> Located {
@@ -105,9 +95,8 @@ fn unknown(path: &Path, line: usize, why: &str) -> Located {
 
 /// The Parquet form, from the file's column names.
 fn parquet_form(path: &Path) -> Result<LogFormat, Located> {
-    let schema = parquet_schema(path)?;
-    let names: Vec<&str> = schema.iter_names().map(|n| n.as_str()).collect();
-    let has = |name: &str| names.contains(&name);
+    let names = parquet_columns(path)?;
+    let has = |name: &str| names.iter().any(|n| n == name);
     if has("t") && has("signal") && has("value") {
         Ok(LogFormat::EventsParquet)
     } else if has("signal") && has("value") && has("t_start") && has("t_end") {
@@ -167,6 +156,19 @@ fn is_candump(line: &str) -> bool {
         && data
             .bytes()
             .all(|b| b.is_ascii_hexdigit() || b == b'R' || b == b'r')
+}
+
+#[cfg(feature = "parquet")]
+fn parquet_columns(path: &Path) -> Result<Vec<String>, Located> {
+    crate::parquet::column_names(path)
+}
+
+#[cfg(not(feature = "parquet"))]
+fn parquet_columns(path: &Path) -> Result<Vec<String>, Located> {
+    Err(Located::new(
+        Location::new(path, 0, 0),
+        "a Parquet log: this build reads no Parquet (feature `parquet`)",
+    ))
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
 //! The two CSV readers on the same files: the line readers of `diagnoser::log`
-//! against polars (`learning::ingest`'s columnar path).
+//! against polars (`logs`'s columnar path).
 //!
 //! ```text
 //! cargo bench -p learning --bench readers -- PLANT FILE...
@@ -13,15 +13,14 @@
 //!
 //! The line reader of the events and scans forms is the streaming one that
 //! `ingest::open` uses past its memory budget; the intervals form's is
-//! `diagnoser::log::read_intervals_as_events`, which holds the log in memory.
+//! `logs::read_intervals_as_events`, which holds the log in memory.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
 use diagnoser::Plant;
-use diagnoser::log::read_intervals_as_events;
-use learning::ingest::{IngestOptions, LogFormat, detect_format, open};
+use logs::{IngestOptions, detect_format, open};
 
 const RUNS: usize = 3;
 
@@ -31,21 +30,23 @@ fn main() {
         .filter(|a| a != "--bench")
         .collect();
     if let [mode, plant, file] = &args[..]
-        && (mode == "--line" || mode == "--polars")
+        && mode == "--child"
     {
-        child(mode == "--line", Path::new(plant), Path::new(file));
+        child(Path::new(plant), Path::new(file));
         return;
     }
     let [plant, files @ ..] = &args[..] else {
-        eprintln!("usage: cargo bench -p learning --bench readers -- PLANT FILE...");
+        eprintln!("usage: cargo bench -p logs --features parquet --bench readers -- PLANT FILE...");
         std::process::exit(2);
     };
-    println!("| file | MB | reader | events | median s | M events/s | MB/s | peak MB |");
+    println!("| file | MB | form | events | median s | M events/s | MB/s | peak MB |");
     println!("|---|---:|---|---:|---:|---:|---:|---:|");
     for file in files {
         let mb = std::fs::metadata(file).map_or(0, |m| m.len()) >> 20;
-        for (name, flag) in [("line", "--line"), ("polars", "--polars")] {
-            let runs: Vec<(u64, f64, u64)> = (0..RUNS).map(|_| run(flag, plant, file)).collect();
+        let name = detect_format(Path::new(file)).map_or("?".into(), |f| format!("{f:?}"));
+        {
+            let runs: Vec<(u64, f64, u64)> =
+                (0..RUNS).map(|_| run("--child", plant, file)).collect();
             let mut secs: Vec<f64> = runs.iter().map(|r| r.1).collect();
             secs.sort_by(f64::total_cmp);
             let median = secs[RUNS / 2];
@@ -83,26 +84,17 @@ fn run(flag: &str, plant: &str, file: &str) -> (u64, f64, u64) {
     )
 }
 
-/// Reads `file` to its end with one reader and prints events, seconds and the
-/// process's peak resident size in KB.
-fn child(line: bool, plant: &Path, file: &Path) {
+/// Reads `file` to its end and prints events, seconds and the process's peak
+/// resident size in KB.
+fn child(plant: &Path, file: &Path) {
     let plant = Plant::from_path(plant).expect("plant file");
-    let format = detect_format(file).expect("a log form");
     let started = Instant::now();
-    let events = if line && format == LogFormat::IntervalsCsv {
-        read_intervals_as_events(file, &plant.signals, plant.time_unit)
-            .expect("intervals")
-            .events
-            .len() as u64
-    } else {
-        let options = IngestOptions {
-            time_unit: plant.time_unit,
-            memory_budget: if line { 0 } else { u64::MAX },
-            ..IngestOptions::default()
-        };
-        let stream = open(file, &plant, &options).expect("log");
-        stream.batches.map(|b| b.expect("batch").len() as u64).sum()
+    let options = IngestOptions {
+        time_unit: plant.time_unit,
+        ..IngestOptions::default()
     };
+    let stream = open(file, &plant, &options).expect("log");
+    let events: u64 = stream.batches.map(|b| b.expect("batch").len() as u64).sum();
     let secs = started.elapsed().as_secs_f64();
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
     let peak = status

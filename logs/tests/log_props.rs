@@ -3,12 +3,12 @@
 
 use std::path::Path;
 
-use diagnoser::log::{
-    EventLog, EventWriter, IntervalWriter, ScanWriter, TimeFormatChoice, read_events_from,
-    read_intervals_as_events_from, read_scans_as_events_from,
-};
 use diagnoser::{
     Event, Located, Signal, SignalId, SignalKind, SignalTable, Time, TimeFormat, TimeUnit,
+};
+use logs::{
+    EventLog, EventWriter, IntervalWriter, ScanWriter, TimeFormatChoice, read_events_from,
+    read_intervals_as_events_from, read_scans_as_events_from,
 };
 use proptest::prelude::*;
 

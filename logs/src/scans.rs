@@ -16,11 +16,11 @@
 use std::io::{self, BufRead, BufWriter, Write};
 use std::path::Path;
 
-use super::csv::{self, CsvReader, State, TimeParser, TimeText};
-use super::{EventLog, TimeFormatChoice};
-use crate::error::Located;
-use crate::signal::{Event, SignalId, SignalTable};
-use crate::time::{Time, TimeFormat, TimeUnit};
+use diagnoser::{Event, Located, SignalId, SignalTable, Time, TimeFormat, TimeUnit};
+
+use crate::csv::{self, CsvRecords, TimeText};
+use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
+use crate::{EventLog, TimeFormatChoice};
 
 /// Writes a scans log: the header `t` plus every signal in table order, then one
 /// row per scan.
@@ -85,8 +85,8 @@ impl<W: Write> ScanWriter<W> {
 /// It checks the header (`t` and every signal, once each), the number of fields,
 /// times (which must strictly increase) and values, and stops after the first
 /// error. Memory grows with the number of signals, not of rows.
-pub struct ScanReader<'a, R> {
-    csv: CsvReader<R>,
+pub struct ScanReader<'a, S> {
+    rows: Rows<S>,
     signals: &'a SignalTable,
     t_column: usize,
     /// The signal of each column (`None` for `t`).
@@ -97,7 +97,7 @@ pub struct ScanReader<'a, R> {
     values: Vec<bool>,
 }
 
-impl<'a, R: BufRead> ScanReader<'a, R> {
+impl<'a, R: BufRead> ScanReader<'a, CsvRecords<R>> {
     /// Reads and checks the header, then the first data row (to detect the time
     /// representation if asked to). `path` is only used in error messages.
     pub fn new(
@@ -106,13 +106,24 @@ impl<'a, R: BufRead> ScanReader<'a, R> {
         signals: &'a SignalTable,
         time: TimeFormatChoice,
     ) -> Result<Self, Located> {
-        let mut csv = CsvReader::new(reader, path);
-        csv.read_header("t,<signal>,<signal>,…")?;
+        Self::from_records(CsvRecords::new(reader, path), signals, time)
+    }
+}
+
+impl<'a, S: Records> ScanReader<'a, S> {
+    /// The same over the records of any container (a CSV file, a Parquet file).
+    pub fn from_records(
+        records: S,
+        signals: &'a SignalTable,
+        time: TimeFormatChoice,
+    ) -> Result<Self, Located> {
+        let mut rows = Rows::new(records);
+        rows.read_header("t,<signal>,<signal>,…")?;
         let mut t_column = None;
-        let mut columns = Vec::with_capacity(csv.len());
+        let mut columns = Vec::with_capacity(rows.len());
         let mut seen = vec![false; signals.len()];
-        for i in 0..csv.len() {
-            let name = csv.field(i);
+        for i in 0..rows.len() {
+            let name = rows.field(i);
             // The first `t` is time; another is a signal named `t`, if any.
             if name == "t" && t_column.is_none() {
                 t_column = Some(i);
@@ -127,15 +138,15 @@ impl<'a, R: BufRead> ScanReader<'a, R> {
                 } else {
                     format!("unknown column '{name}': not a signal of the plant")
                 };
-                return Err(csv.error(csv.column(i), None, message));
+                return Err(rows.error(rows.column(i), None, message));
             };
             if std::mem::replace(&mut seen[id.index()], true) {
-                return Err(csv.error(csv.column(i), None, format!("duplicate column '{name}'")));
+                return Err(rows.error(rows.column(i), None, rows::duplicate_column(name)));
             }
             columns.push(Some(id));
         }
         let Some(t_column) = t_column else {
-            return Err(csv.error(
+            return Err(rows.error(
                 0,
                 None,
                 "missing required column 't' (expected t,<signal>,<signal>,…)",
@@ -150,19 +161,32 @@ impl<'a, R: BufRead> ScanReader<'a, R> {
             let s = if missing.len() > 1 { "s" } else { "" };
             let message = format!(
                 "missing column{s} for signal{s} {}: a scans log needs every signal",
-                csv::quote_list(missing)
+                rows::quote_list(missing)
             );
-            return Err(csv.error(0, None, message));
+            return Err(rows.error(0, None, message));
         }
         let mut time = TimeParser::new(time);
-        let state = if csv.next_record()? {
-            time.detect(csv.field(t_column));
+        let kinds: Vec<(usize, CellKind)> = (0..columns.len())
+            .map(|i| {
+                (
+                    i,
+                    if i == t_column {
+                        CellKind::Time
+                    } else {
+                        CellKind::Value
+                    },
+                )
+            })
+            .collect();
+        rows.check_kinds(&kinds, time.unit())?;
+        let state = if rows.next_record()? {
+            time.detect(rows.field(t_column));
             State::Pending
         } else {
             State::Done
         };
         Ok(ScanReader {
-            csv,
+            rows,
             signals,
             t_column,
             columns,
@@ -181,13 +205,13 @@ impl<'a, R: BufRead> ScanReader<'a, R> {
 
     /// Line (from 1) of the last row read.
     pub fn line(&self) -> usize {
-        self.csv.line_no()
+        self.rows.line_no()
     }
 
     /// The next scan: its time and the value of every signal, indexed by
     /// [`SignalId::index`](crate::SignalId::index). `None` at the end of the log or after an error.
     pub fn next_scan(&mut self) -> Option<Result<(Time, &[bool]), Located>> {
-        if let Err(e) = self.state.advance(&mut self.csv)? {
+        if let Err(e) = self.state.advance(&mut self.rows)? {
             return Some(Err(e));
         }
         match self.parse_row() {
@@ -200,33 +224,33 @@ impl<'a, R: BufRead> ScanReader<'a, R> {
     }
 
     fn parse_row(&mut self) -> Result<Time, Located> {
-        let csv = &self.csv;
+        let rows = &self.rows;
         let t_col = self.t_column;
-        csv.check_width(self.columns.len())?;
-        let t = self.time.parse(csv, t_col, "t")?;
+        rows.check_width(self.columns.len())?;
+        let t = self.time.parse(rows, t_col, "t")?;
         if let Some((previous, line)) = self.previous {
             if t <= previous {
                 let message = if t == previous {
                     format!(
                         "time does not increase: {} repeats the time of line {line}",
-                        csv.field(t_col)
+                        rows.field(t_col)
                     )
                 } else {
-                    format!(
-                        "time goes backwards: {} is before {} on line {line}",
-                        csv.field(t_col),
-                        self.time.format().format(previous)
+                    rows::backwards(
+                        rows.field(t_col),
+                        &self.time.format().format(previous),
+                        line,
                     )
                 };
-                return Err(csv.field_error(t_col, "t", message));
+                return Err(rows.field_error(t_col, "t", message));
             }
         }
         for (i, column) in self.columns.iter().enumerate() {
             if let Some(id) = *column {
-                self.values[id.index()] = csv.value(i, self.signals.name(id))?;
+                self.values[id.index()] = rows.value(i, self.signals.name(id))?;
             }
         }
-        self.previous = Some((t, csv.line_no()));
+        self.previous = Some((t, rows.line_no()));
         Ok(t)
     }
 }
@@ -239,7 +263,7 @@ pub fn read_scans_as_events(
     unit: TimeUnit,
 ) -> Result<EventLog, Located> {
     read_scans_as_events_from(
-        csv::open(path)?,
+        rows::open(path)?,
         path,
         signals,
         TimeFormatChoice::Detect(unit),
@@ -257,34 +281,77 @@ pub fn read_scans_as_events_from<R: BufRead>(
     signals: &SignalTable,
     time: TimeFormatChoice,
 ) -> Result<EventLog, Located> {
-    let mut reader = ScanReader::new(reader, path, signals, time)?;
-    let (start, initial) = match reader.next_scan() {
-        None => return Err(csv::no_data(path)),
-        Some(scan) => {
-            let (t, values) = scan?;
-            (t, values.to_vec())
-        }
-    };
-    let mut current = initial.clone();
+    let mut changes = ScanChanges::open(ScanReader::new(reader, path, signals, time)?)?;
     let mut events = Vec::new();
-    while let Some(scan) = reader.next_scan() {
+    while changes.read_scan(&mut events)? {}
+    Ok(EventLog {
+        format: changes.format(),
+        start: changes.start(),
+        initial: changes.initial().to_vec(),
+        events,
+        end: None,
+    })
+}
+
+/// A scans log as its initial values (its first row), then its changes row by
+/// row, in memory that does not grow with the log.
+pub struct ScanChanges<'a, S> {
+    rows: ScanReader<'a, S>,
+    start: Time,
+    initial: Vec<bool>,
+    current: Vec<bool>,
+}
+
+impl<'a, S: Records> ScanChanges<'a, S> {
+    /// Reads the first row: the initial values.
+    pub fn open(mut rows: ScanReader<'a, S>) -> Result<Self, Located> {
+        let (start, initial) = match rows.next_scan() {
+            None => return Err(rows::no_data(rows.rows.path())),
+            Some(scan) => {
+                let (t, values) = scan?;
+                (t, values.to_vec())
+            }
+        };
+        Ok(ScanChanges {
+            rows,
+            start,
+            current: initial.clone(),
+            initial,
+        })
+    }
+
+    /// The log's first time.
+    pub fn start(&self) -> Time {
+        self.start
+    }
+
+    /// Every signal's value in the first row.
+    pub fn initial(&self) -> &[bool] {
+        &self.initial
+    }
+
+    /// How the log writes its times.
+    pub fn format(&self) -> TimeFormat {
+        self.rows.format()
+    }
+
+    /// Appends the changes of the next row to `out`, by signal; `Ok(false)` at
+    /// the end of the log.
+    pub fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
+        let Some(scan) = self.rows.next_scan() else {
+            return Ok(false);
+        };
         let (t, values) = scan?;
-        for (i, (&value, old)) in values.iter().zip(current.iter_mut()).enumerate() {
+        for (i, (&value, old)) in values.iter().zip(self.current.iter_mut()).enumerate() {
             if value != *old {
                 *old = value;
-                events.push(Event {
+                out.push(Event {
                     t,
                     signal: SignalId(i as u32),
                     value,
                 });
             }
         }
+        Ok(true)
     }
-    Ok(EventLog {
-        format: reader.format(),
-        start,
-        initial,
-        events,
-        end: None,
-    })
 }

@@ -25,11 +25,11 @@
 use std::io::{self, BufRead, BufWriter, Write};
 use std::path::Path;
 
-use super::csv::{self, CsvReader, State, TimeParser, TimeText};
-use super::{EventLog, TimeFormatChoice};
-use crate::error::{Located, Location};
-use crate::signal::{Event, SignalTable};
-use crate::time::{Time, TimeFormat, TimeUnit};
+use diagnoser::{Event, Located, Location, SignalTable, Time, TimeFormat, TimeUnit};
+
+use crate::csv::{self, CsvRecords, TimeText};
+use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
+use crate::{EventLog, TimeFormatChoice};
 
 /// The header the writer writes.
 const HEADER: &str = "t,signal,value";
@@ -68,11 +68,7 @@ impl<W: Write> EventWriter<W> {
     /// `values` is indexed by [`SignalId::index`](crate::SignalId::index).
     pub fn write_initial(&mut self, t: Time, values: &[bool]) -> io::Result<()> {
         if values.len() != self.names.len() {
-            return Err(csv::invalid_input(format!(
-                "{} initial values for {} signals",
-                values.len(),
-                self.names.len()
-            )));
+            return Err(csv::wrong_initial(values.len(), self.names.len()));
         }
         for (i, &value) in values.iter().enumerate() {
             self.row(t, i, value)?;
@@ -85,10 +81,7 @@ impl<W: Write> EventWriter<W> {
     pub fn write(&mut self, event: &Event) -> io::Result<()> {
         let i = event.signal.index();
         if i >= self.names.len() {
-            return Err(csv::invalid_input(format!(
-                "no signal with id {}",
-                event.signal.0
-            )));
+            return Err(csv::no_signal(event.signal));
         }
         self.row(event.t, i, event.value)
     }
@@ -123,8 +116,8 @@ impl<W: Write> EventWriter<W> {
 /// of fields, times (which must not go backwards), values and signal names, and
 /// stops after the first error. Memory does not grow with the log. An end row is
 /// not yielded: it ends the iteration, and [`EventReader::end`] gives its time.
-pub struct EventReader<'a, R> {
-    csv: CsvReader<R>,
+pub struct EventReader<'a, S> {
+    rows: Rows<S>,
     signals: &'a SignalTable,
     /// Positions of `t`, `signal` and `value`.
     columns: [usize; 3],
@@ -135,7 +128,7 @@ pub struct EventReader<'a, R> {
     end: Option<Time>,
 }
 
-impl<'a, R: BufRead> EventReader<'a, R> {
+impl<'a, R: BufRead> EventReader<'a, CsvRecords<R>> {
     /// Reads and checks the header, then the first data row (to detect the time
     /// representation if asked to). `path` is only used in error messages.
     pub fn new(
@@ -144,20 +137,33 @@ impl<'a, R: BufRead> EventReader<'a, R> {
         signals: &'a SignalTable,
         time: TimeFormatChoice,
     ) -> Result<Self, Located> {
-        let mut csv = CsvReader::new(reader, path);
-        csv.read_header(HEADER)?;
-        let positions = csv.map_columns(&REQUIRED, &OPTIONAL, EXPECTED)?;
+        Self::from_records(CsvRecords::new(reader, path), signals, time)
+    }
+}
+
+impl<'a, S: Records> EventReader<'a, S> {
+    /// The same over the records of any container (a CSV file, a Parquet file).
+    pub fn from_records(
+        records: S,
+        signals: &'a SignalTable,
+        time: TimeFormatChoice,
+    ) -> Result<Self, Located> {
+        let mut rows = Rows::new(records);
+        rows.read_header(HEADER)?;
+        let positions = rows.map_columns(&REQUIRED, &OPTIONAL, EXPECTED)?;
         let columns = [positions[0], positions[1], positions[2]];
-        let width = csv.len();
+        let width = rows.len();
         let mut time = TimeParser::new(time);
-        let state = if csv.next_record()? {
-            time.detect(csv.field(columns[0]));
+        let kinds = [CellKind::Time, CellKind::Signal, CellKind::Value];
+        rows.check_kinds(&[0, 1, 2].map(|k| (columns[k], kinds[k])), time.unit())?;
+        let state = if rows.next_record()? {
+            time.detect(rows.field(columns[0]));
             State::Pending
         } else {
             State::Done
         };
         Ok(EventReader {
-            csv,
+            rows,
             signals,
             columns,
             width,
@@ -176,7 +182,7 @@ impl<'a, R: BufRead> EventReader<'a, R> {
 
     /// Line (from 1) of the last row read.
     pub fn line(&self) -> usize {
-        self.csv.line_no()
+        self.rows.line_no()
     }
 
     /// The time of the log's end row, once the reader has reached it.
@@ -187,18 +193,18 @@ impl<'a, R: BufRead> EventReader<'a, R> {
     /// Whether the current row is an end row (empty signal and value).
     fn at_end_row(&self) -> bool {
         let [_, signal_col, value_col] = self.columns;
-        self.csv.field(signal_col).is_empty() && self.csv.field(value_col).is_empty()
+        self.rows.field(signal_col).is_empty() && self.rows.field(value_col).is_empty()
     }
 
     /// Reads the end row's time; no row may follow it.
     fn read_end(&mut self) -> Result<(), Located> {
         let t = self.checked_time()?;
-        let line = self.csv.line_no();
-        if self.csv.next_record()? {
+        let line = self.rows.line_no();
+        if self.rows.next_record()? {
             let message = format!(
                 "a row after the end row on line {line}: the end row (a time with no signal and no value) must be the last"
             );
-            return Err(self.csv.error(1, None, message));
+            return Err(self.rows.error(1, None, message));
         }
         self.end = Some(t);
         Ok(())
@@ -206,18 +212,18 @@ impl<'a, R: BufRead> EventReader<'a, R> {
 
     /// The current row's time, which must not go backwards.
     fn checked_time(&mut self) -> Result<Time, Located> {
-        let csv = &self.csv;
+        let rows = &self.rows;
         let t_col = self.columns[0];
-        csv.check_width(self.width)?;
-        let t = self.time.parse(csv, t_col, "t")?;
+        rows.check_width(self.width)?;
+        let t = self.time.parse(rows, t_col, "t")?;
         if let Some((previous, line)) = self.previous {
             if t < previous {
-                let message = format!(
-                    "time goes backwards: {} is before {} on line {line}",
-                    csv.field(t_col),
-                    self.time.format().format(previous)
+                let message = rows::backwards(
+                    rows.field(t_col),
+                    &self.time.format().format(previous),
+                    line,
                 );
-                return Err(csv.field_error(t_col, "t", message));
+                return Err(rows.field_error(t_col, "t", message));
             }
         }
         Ok(t)
@@ -225,11 +231,11 @@ impl<'a, R: BufRead> EventReader<'a, R> {
 
     fn parse_row(&mut self) -> Result<Event, Located> {
         let t = self.checked_time()?;
-        let csv = &self.csv;
+        let rows = &self.rows;
         let [_, signal_col, value_col] = self.columns;
-        let signal = csv.signal(signal_col, "signal", self.signals)?;
-        let value = csv.value(value_col, "value")?;
-        self.previous = Some((t, csv.line_no()));
+        let signal = rows.signal(signal_col, "signal", self.signals)?;
+        let value = rows.value(value_col, "value")?;
+        self.previous = Some((t, rows.line_no()));
         Ok(Event { t, signal, value })
     }
 
@@ -239,17 +245,17 @@ impl<'a, R: BufRead> EventReader<'a, R> {
         let message = format!(
             "conflicting values for signal '{}' at time {}: line {earlier} gives the other value",
             self.signals.name(event.signal),
-            self.csv.field(self.columns[0])
+            self.rows.field(self.columns[0])
         );
-        self.csv.field_error(self.columns[2], "value", message)
+        self.rows.field_error(self.columns[2], "value", message)
     }
 }
 
-impl<R: BufRead> Iterator for EventReader<'_, R> {
+impl<S: Records> Iterator for EventReader<'_, S> {
     type Item = Result<Event, Located>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        if let Err(e) = self.state.advance(&mut self.csv)? {
+        if let Err(e) = self.state.advance(&mut self.rows)? {
             return Some(Err(e));
         }
         if self.at_end_row() {
@@ -272,7 +278,7 @@ pub fn read_events(
     unit: TimeUnit,
 ) -> Result<EventLog, Located> {
     read_events_from(
-        csv::open(path)?,
+        rows::open(path)?,
         path,
         signals,
         TimeFormatChoice::Detect(unit),
@@ -291,66 +297,125 @@ pub fn read_events_from<R: BufRead>(
     signals: &SignalTable,
     time: TimeFormatChoice,
 ) -> Result<EventLog, Located> {
-    let mut rows = EventReader::new(reader, path, signals, time)?;
-    let n = signals.len();
-    let first_line = rows.line();
-    let Some(first) = rows.next().transpose()? else {
-        return Err(csv::no_data(path));
-    };
-    let start = first.t;
-
-    // Opening rows. `last` holds the time and line of each signal's last row.
-    let mut initial: Vec<Option<bool>> = vec![None; n];
-    let mut last: Vec<(Time, usize)> = vec![(start, first_line); n];
-    let mut next = Some(first);
-    while let Some(event) = next.take_if(|e| e.t == start) {
-        let i = event.signal.index();
-        if initial[i].is_some_and(|value| value != event.value) {
-            return Err(rows.conflict(event, last[i].1));
-        }
-        initial[i] = Some(event.value);
-        last[i] = (event.t, rows.line());
-        next = rows.next().transpose()?;
-    }
-    let missing: Vec<&str> = signals
-        .iter()
-        .filter(|(id, _)| initial[id.index()].is_none())
-        .map(|(_, s)| s.name.as_str())
-        .collect();
-    if !missing.is_empty() {
-        let s = if missing.len() > 1 { "s" } else { "" };
-        let message = format!(
-            "no initial value for signal{s} {}: the log must open with one row per signal at its first time {}",
-            csv::quote_list(missing),
-            rows.format().format(start)
-        );
-        return Err(Located::new(Location::new(path, first_line, 0), message));
-    }
-    let initial: Vec<bool> = initial.into_iter().map(|v| v.unwrap_or(false)).collect();
-
-    // Changes.
-    let mut current = initial.clone();
+    let mut changes = EventChanges::open(EventReader::new(reader, path, signals, time)?)?;
     let mut events = Vec::new();
-    while let Some(event) = next.take().map(Ok).or_else(|| rows.next()) {
-        let event = event?;
-        let i = event.signal.index();
-        if event.value != current[i] {
-            if last[i].0 == event.t {
+    while changes.read_scan(&mut events)? {}
+    Ok(EventLog {
+        format: changes.format(),
+        start: changes.start(),
+        initial: changes.initial().to_vec(),
+        events,
+        end: changes.end(),
+    })
+}
+
+/// An events log as its initial values, then its changes scan by scan: the
+/// rules of [`read_events_from`], in memory that does not grow with the log.
+pub struct EventChanges<'a, S> {
+    rows: EventReader<'a, S>,
+    start: Time,
+    initial: Vec<bool>,
+    current: Vec<bool>,
+    /// The time and line of each signal's last row.
+    last: Vec<(Time, usize)>,
+    /// The first row of the next scan, read ahead.
+    next: Option<Event>,
+}
+
+impl<'a, S: Records> EventChanges<'a, S> {
+    /// Reads the opening rows: every signal needs one, and no signal two values.
+    pub fn open(mut rows: EventReader<'a, S>) -> Result<Self, Located> {
+        let n = rows.signals.len();
+        let first_line = rows.line();
+        let Some(first) = rows.next().transpose()? else {
+            return Err(rows::no_data(rows.rows.path()));
+        };
+        let start = first.t;
+        let mut initial: Vec<Option<bool>> = vec![None; n];
+        let mut last: Vec<(Time, usize)> = vec![(start, first_line); n];
+        let mut next = Some(first);
+        while let Some(event) = next.take_if(|e| e.t == start) {
+            let i = event.signal.index();
+            if initial[i].is_some_and(|value| value != event.value) {
                 return Err(rows.conflict(event, last[i].1));
             }
-            current[i] = event.value;
-            events.push(event);
+            initial[i] = Some(event.value);
+            last[i] = (event.t, rows.line());
+            next = rows.next().transpose()?;
         }
-        last[i] = (event.t, rows.line());
+        let missing: Vec<&str> = (rows.signals.iter())
+            .filter(|(id, _)| initial[id.index()].is_none())
+            .map(|(_, s)| s.name.as_str())
+            .collect();
+        if !missing.is_empty() {
+            let s = if missing.len() > 1 { "s" } else { "" };
+            let message = format!(
+                "no initial value for signal{s} {}: the log must open with one row per signal at its first time {}",
+                rows::quote_list(missing),
+                rows.format().format(start)
+            );
+            let location = Location::new(rows.rows.path(), first_line, 0);
+            return Err(Located::new(location, message));
+        }
+        let initial: Vec<bool> = initial.into_iter().map(|v| v.unwrap_or(false)).collect();
+        Ok(EventChanges {
+            rows,
+            start,
+            current: initial.clone(),
+            initial,
+            last,
+            next,
+        })
     }
-    for scan in events.chunk_by_mut(|a, b| a.t == b.t) {
-        scan.sort_unstable_by_key(|e| e.signal);
+
+    /// The log's first time.
+    pub fn start(&self) -> Time {
+        self.start
     }
-    Ok(EventLog {
-        format: rows.format(),
-        start,
-        initial,
-        events,
-        end: rows.end(),
-    })
+
+    /// Every signal's value at the first time.
+    pub fn initial(&self) -> &[bool] {
+        &self.initial
+    }
+
+    /// How the log writes its times.
+    pub fn format(&self) -> TimeFormat {
+        self.rows.format()
+    }
+
+    /// The end the log declares, once the last scan is read.
+    pub fn end(&self) -> Option<Time> {
+        self.rows.end()
+    }
+
+    /// Appends the changes of the next scan (its rows at one time) to `out`,
+    /// sorted by signal; `Ok(false)` at the end of the log.
+    pub fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
+        let Some(first) = self.next.take().map(Ok).or_else(|| self.rows.next()) else {
+            return Ok(false);
+        };
+        let first = first?;
+        let t = first.t;
+        let from = out.len();
+        let mut row = Some(Ok(first));
+        while let Some(event) = row {
+            let event = event?;
+            if event.t != t {
+                self.next = Some(event);
+                break;
+            }
+            let i = event.signal.index();
+            if event.value != self.current[i] {
+                if self.last[i].0 == event.t {
+                    return Err(self.rows.conflict(event, self.last[i].1));
+                }
+                self.current[i] = event.value;
+                out.push(event);
+            }
+            self.last[i] = (event.t, self.rows.line());
+            row = self.rows.next();
+        }
+        out[from..].sort_unstable_by_key(|e| e.signal);
+        Ok(true)
+    }
 }

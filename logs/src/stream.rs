@@ -22,12 +22,8 @@ use std::sync::{Arc, OnceLock};
 
 use diagnoser::{Event, Located, Plant, Time, TimeFormat, TimeUnit};
 
-mod archive;
-mod columnar;
-mod detect;
-
-pub use archive::write_intervals_parquet;
-pub use detect::detect_format;
+use crate::detect::detect_format;
+use crate::{candump, threaded, vcd};
 
 /// The forms of log gardefou reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -87,10 +83,6 @@ pub struct IngestOptions {
     pub time_unit: TimeUnit,
     /// Roughly how many events (or rows) to decode per batch; bounds memory.
     pub batch_rows: usize,
-    /// CSV logs larger than this many bytes are read with a buffered streaming
-    /// reader instead of polars, which maps the whole file into memory: resident
-    /// memory then stays flat however long the log.
-    pub memory_budget: u64,
     /// Parquet logs are read in slices of this many rows, one polars query
     /// each: polars maps the whole file while a query runs, and a query per
     /// slice keeps the file's resident pages to a slice's.
@@ -103,14 +95,13 @@ impl Default for IngestOptions {
             format: None,
             time_unit: TimeUnit::Ms,
             batch_rows: 1 << 16,
-            memory_budget: 512 << 20,
             parquet_slice_rows: 1 << 22,
         }
     }
 }
 
 /// When a log says its recording ended (the events form's end row, see
-/// `diagnoser::log::events`). The readers stream, and the end row comes last:
+/// `logs::events`). The readers stream, and the end row comes last:
 /// it is known once every batch has been read, and shared with the reader that
 /// finds it.
 #[derive(Debug, Clone, Default)]
@@ -193,20 +184,16 @@ impl std::fmt::Debug for LogStream {
 /// Opens the log at `path`, of the form `options.format` or else the detected
 /// one ([`detect_format`]), for the signals of `plant`.
 ///
-/// CSV and Parquet logs of the three forms are read with polars' streaming
-/// engine in frames of about `options.batch_rows` rows, each decoded into events
-/// as it comes, so memory is bounded by a few batches whatever the size of the
-/// log. The initial values are read before this returns; the first batch may
-/// then hold events read meanwhile. The intervals form is read twice (first to
-/// check it and find the initial values, which come last in an archive); it
-/// streams when its closed intervals are in `t_end` order (as archives are
-/// written) or its rows in `t_start` order, and otherwise sorts its changes in
-/// memory (16 bytes per change). `candump -L` and VCD logs are read by
+/// CSV and Parquet logs of the three forms are read by the form's reader
+/// ([`crate::EventReader`], [`crate::IntervalReader`], [`crate::ScanReader`]) on
+/// a thread of its own, which hands batches of about `options.batch_rows`
+/// events over a bounded channel: memory stays at a few batches whatever the
+/// size of the log, and reading overlaps with what the caller does. Parquet
+/// rows come from polars (feature `parquet`), CSV lines from
+/// [`crate::csv::CsvRecords`]; both go through the same rules. The initial
+/// values are read before this returns. An intervals log is read twice (see
+/// [`crate::IntervalChanges`]). `candump -L` and VCD logs are read by
 /// [`candump::open`] and [`vcd::open`].
-///
-/// Events and scans CSV files larger than `options.memory_budget` are read by
-/// a buffered streaming reader on a thread of its own instead (flat resident
-/// memory, the same events and errors).
 ///
 /// Numeric timestamps are in `options.time_unit`; text timestamps may be RFC
 /// 3339 (detected from the first one, as [`TimeFormat::detect`] does). Parquet
@@ -216,18 +203,15 @@ impl std::fmt::Debug for LogStream {
 /// Errors, before or during the batches, are one line naming the file, line,
 /// column and field: a missing column, a value that is not boolean, time going
 /// backwards, an unknown signal, a time that cannot be parsed, a missing initial
-/// value... For CSV, they are the errors of `diagnoser::log`'s exact readers;
-/// for Parquet, see the module documentation for what line and column mean.
+/// value... In a Parquet file, the "line" of a row is its 1-based row number
+/// plus one (as if the column names were line 1), and the column is the
+/// 1-based index of the column in the file's schema.
 pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
     let format = match options.format {
         Some(format) => format,
         None => detect_format(path)?,
     };
-    let large = std::fs::metadata(path).is_ok_and(|m| m.len() > options.memory_budget);
     match format {
-        LogFormat::EventsCsv | LogFormat::ScansCsv if large => {
-            buffered::open(path, plant, options, format)
-        }
         LogFormat::Candump => candump::open(path, plant, options),
         LogFormat::Vcd => vcd::open(path, plant, options),
         LogFormat::EventsCsv
@@ -235,10 +219,6 @@ pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogSt
         | LogFormat::ScansCsv
         | LogFormat::EventsParquet
         | LogFormat::IntervalsParquet
-        | LogFormat::ScansParquet => columnar::open(path, plant, options, format),
+        | LogFormat::ScansParquet => threaded::open(path, plant, options, format),
     }
 }
-
-mod buffered;
-pub mod candump;
-pub mod vcd;

@@ -42,7 +42,6 @@
 
 use std::collections::HashMap;
 use std::fmt;
-use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 
@@ -150,7 +149,7 @@ impl std::error::Error for FrameError {}
 /// ```
 /// use std::path::Path;
 /// use diagnoser::Plant;
-/// use learning::ingest::candump::PdoDecoder;
+/// use logs::candump::PdoDecoder;
 ///
 /// let plant = Plant::parse(
 ///     r#"
@@ -311,7 +310,7 @@ pub fn looks_like(head: &str) -> bool {
 pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
     let whole_file = |message: String| Located::new(Location::new(path, 0, 0), message);
     let decoder = PdoDecoder::new(plant).map_err(|e| whole_file(e.to_string()))?;
-    let file = File::open(path).map_err(|e| whole_file(format!("cannot open log: {e}")))?;
+    let file = crate::rows::open_file(path)?;
     let n = plant.signals.len();
     let mut reader = Reader {
         input: BufReader::new(file),
@@ -421,12 +420,7 @@ impl<R: BufRead> Reader<R> {
             let read = (&mut self.input)
                 .take(MAX_LINE as u64 + 1)
                 .read_until(b'\n', &mut self.buf)
-                .map_err(|e| {
-                    Located::new(
-                        Location::new(&self.path, self.line + 1, 0),
-                        format!("cannot read log: {e}"),
-                    )
-                })?;
+                .map_err(|e| crate::rows::cannot_read(&self.path, self.line + 1, &e))?;
             if read == 0 {
                 return Ok(None);
             }
@@ -461,10 +455,10 @@ impl<R: BufRead> Reader<R> {
             if frame.t < previous {
                 return Err(self.error(
                     frame.t_column,
-                    format!(
-                        "time goes backwards: {} is before {} on line {line}",
-                        TimeUnit::S.format(frame.t),
-                        TimeUnit::S.format(previous)
+                    crate::rows::backwards(
+                        &TimeUnit::S.format(frame.t),
+                        &TimeUnit::S.format(previous),
+                        line,
                     ),
                 ));
             }

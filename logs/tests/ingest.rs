@@ -8,12 +8,12 @@ use std::path::{Path, PathBuf};
 
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant as sorting_plant};
-use diagnoser::log::{
+use diagnoser::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
+use logs::{
     EventLog, EventWriter, IntervalWriter, ScanWriter, read_events, read_intervals_as_events,
     read_scans_as_events,
 };
-use diagnoser::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
-use learning::ingest::{IngestOptions, LogFormat, detect_format, open, write_intervals_parquet};
+use logs::{IngestOptions, LogFormat, detect_format, open, write_intervals_parquet};
 use polars::prelude::{Column, DataFrame, ParquetWriter};
 
 /// A small batch size, so that every form is read in many batches.
@@ -25,7 +25,6 @@ fn options(batch_rows: usize) -> IngestOptions {
         time_unit: TimeUnit::Ms,
         batch_rows,
         // These tests exercise the polars path whatever the file size.
-        memory_budget: u64::MAX,
         parquet_slice_rows: 1 << 22,
     }
 }
@@ -678,7 +677,7 @@ fn an_end_row_reaches_every_reader_of_the_events_form() {
     );
 
     let buffered = IngestOptions {
-        memory_budget: 0,
+        batch_rows: 1,
         ..options(BATCH)
     };
     for (path, opts, declared) in [
@@ -688,7 +687,7 @@ fn an_end_row_reaches_every_reader_of_the_events_form() {
         (&open_ended, options(BATCH), None),
         (&open_ended, buffered.clone(), None),
     ] {
-        let what = format!("{} (memory budget {})", path.display(), opts.memory_budget);
+        let what = format!("{} (batches of {})", path.display(), opts.batch_rows);
         let r = read(path, &plant, &opts).unwrap_or_else(|e| panic!("{what}: {e}"));
         assert_eq!(r.events, sink.events, "{what}: the end row adds no event");
         assert_eq!(r.end, declared, "{what}");

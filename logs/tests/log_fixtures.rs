@@ -14,11 +14,11 @@ use std::fs::{self, File};
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
-use diagnoser::log::{
+use diagnoser::{Event, Located, MS, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
+use logs::{
     EventLog, TimeFormatChoice, read_events, read_events_from, read_intervals_as_events,
     read_intervals_as_events_from, read_scans_as_events, read_scans_as_events_from,
 };
-use diagnoser::{Event, Located, MS, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
 
 const FORMS: [&str; 3] = ["events", "intervals", "scans"];
 

@@ -1,0 +1,390 @@
+//! Parquet logs: their rows as [`Records`], read with polars, and the archive
+//! writer ([`write_intervals_parquet`]).
+//!
+//! A Parquet log holds the columns of its form's CSV header. Its rows are
+//! handed to the form's reader as records, so every rule and message of the
+//! form is the one CSV gets: the column names are the header, "line" 1, and
+//! row *k* (from 1) is line *k* + 1; the column of a cell is the 1-based index
+//! of its column in the file's schema. Each cell is given as the text CSV
+//! would hold: integers and floats in decimal, booleans as `true`/`false`,
+//! null as an empty field. A row of nulls is skipped, as CSV skips a blank
+//! line.
+//!
+//! # Streaming
+//!
+//! A polars lazy scan (`LazyFrame::scan_parquet`) ends in `sink_batches`, run
+//! by the streaming engine on a thread of its own. The sink's callback hands
+//! each `DataFrame` of about `batch_rows` rows to the reading side through a
+//! rendezvous channel, and blocks until it is taken: the engine cannot run
+//! ahead of the consumer, so memory is bounded by a few frames whatever the
+//! size of the log. polars memory-maps local files while a query runs: the
+//! pages it has read also count in the process's resident size (clean page
+//! cache, which the kernel reclaims at will). So that they stay bounded too, a
+//! log is read by one query per slice of `IngestOptions::parquet_slice_rows`
+//! rows, each unmapping the file when done. Dropping the records closes the
+//! channel, which makes the callback ask the engine to stop.
+
+use std::fmt::Write as _;
+use std::num::NonZeroUsize;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{Receiver, sync_channel};
+use std::thread::JoinHandle;
+
+use diagnoser::Located;
+use polars::prelude::{
+    BooleanChunked, DataFrame, DataType, Engine, Float64Chunked, IdxSize, Int64Chunked, LazyFrame,
+    ParquetReader, PlRefPath, PlanCallback, PolarsError, PolarsResult, ScanArgsParquet, SchemaRef,
+    SerReader, StringChunked,
+};
+
+use crate::IngestOptions;
+use crate::rows::{CellKind, Records, file_error, open_file};
+
+mod archive;
+
+pub use archive::write_intervals_parquet;
+
+/// The first line of a polars error: its messages can span several lines of
+/// advice, and our errors are one line.
+fn first_line(message: &str) -> &str {
+    message.lines().next().unwrap_or("").trim()
+}
+
+/// The error for a failure of polars itself (a malformed file).
+fn failure(path: &Path, message: &str) -> Located {
+    file_error(
+        path,
+        format!("cannot read the Parquet log: {}", first_line(message)),
+    )
+}
+
+/// The schema of a Parquet file, from its footer.
+fn schema(path: &Path) -> Result<SchemaRef, Located> {
+    let failed = |e: PolarsError| failure(path, &e.to_string());
+    let source = PlRefPath::try_from_path(path).map_err(failed)?;
+    LazyFrame::scan_parquet(source, scan_args())
+        .and_then(|mut lf| lf.collect_schema())
+        .map_err(failed)
+}
+
+/// The names of a Parquet file's columns, from its footer.
+pub(crate) fn column_names(path: &Path) -> Result<Vec<String>, Located> {
+    Ok(schema(path)?.iter_names().map(|n| n.to_string()).collect())
+}
+
+fn scan_args() -> ScanArgsParquet {
+    ScanArgsParquet {
+        glob: false,
+        ..ScanArgsParquet::default()
+    }
+}
+
+/// The rows of a Parquet log, as records.
+pub struct ParquetRecords {
+    path: PathBuf,
+    schema: SchemaRef,
+    names: Vec<String>,
+    options: IngestOptions,
+    /// The frames, once the header has been read.
+    frames: Option<Frames>,
+    /// The current frame's columns, and the next row in it.
+    cells: Vec<Cells>,
+    height: usize,
+    next_row: usize,
+    /// Rows before the current one (blank rows included).
+    rows: u64,
+    header: bool,
+    /// The current record's fields, as text, and their ranges in it.
+    text: String,
+    fields: Vec<(usize, usize)>,
+}
+
+impl ParquetRecords {
+    /// Opens the file and reads its schema; no row is read yet.
+    pub fn open(path: &Path, options: &IngestOptions) -> Result<Self, Located> {
+        let schema = schema(path)?;
+        let names = schema.iter_names().map(|n| n.to_string()).collect();
+        Ok(ParquetRecords {
+            path: path.to_path_buf(),
+            schema,
+            names,
+            options: options.clone(),
+            frames: None,
+            cells: Vec::new(),
+            height: 0,
+            next_row: 0,
+            rows: 0,
+            header: false,
+            text: String::new(),
+            fields: Vec::new(),
+        })
+    }
+
+    /// The header record: the column names.
+    fn read_header(&mut self) {
+        self.header = true;
+        self.text.clear();
+        self.fields.clear();
+        for name in &self.names {
+            let start = self.text.len();
+            self.text.push_str(name);
+            self.fields.push((start, self.text.len()));
+        }
+    }
+
+    /// Moves to the next frame; `Ok(false)` at the end of the file.
+    fn next_frame(&mut self) -> Result<bool, Located> {
+        let frames = match &mut self.frames {
+            Some(frames) => frames,
+            None => self
+                .frames
+                .insert(Frames::start(&self.path, &self.options)?),
+        };
+        match frames.next() {
+            None => Ok(false),
+            Some(Err(message)) => Err(failure(&self.path, &message)),
+            Some(Ok(df)) => {
+                self.cells = (self.names.iter())
+                    .map(|name| Cells::of(&df, name))
+                    .collect::<Result<_, _>>()
+                    .map_err(|message| failure(&self.path, &message))?;
+                self.height = df.height();
+                self.next_row = 0;
+                Ok(true)
+            }
+        }
+    }
+
+    /// Renders row `i` of the current frame; `false` if all its cells are null.
+    fn render(&mut self, i: usize) -> bool {
+        self.text.clear();
+        self.fields.clear();
+        let mut blank = true;
+        for cells in &self.cells {
+            let start = self.text.len();
+            blank &= !cells.render(i, &mut self.text);
+            let field = clean(&self.text[start..]);
+            let offset = field.as_ptr() as usize - self.text.as_ptr() as usize;
+            self.fields.push((offset, offset + field.len()));
+        }
+        !blank
+    }
+}
+
+impl Records for ParquetRecords {
+    fn next_record(&mut self) -> Result<bool, Located> {
+        if !self.header && self.frames.is_none() {
+            self.read_header();
+            return Ok(true);
+        }
+        self.header = false;
+        loop {
+            while self.next_row < self.height {
+                let i = self.next_row;
+                self.next_row += 1;
+                self.rows += 1;
+                if self.render(i) {
+                    return Ok(true);
+                }
+            }
+            if !self.next_frame()? {
+                self.fields.clear();
+                return Ok(false);
+            }
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.fields.len()
+    }
+
+    fn field(&self, i: usize) -> &str {
+        self.fields.get(i).map_or("", |&(a, b)| &self.text[a..b])
+    }
+
+    fn column(&self, i: usize) -> usize {
+        i.min(self.names.len()) + 1
+    }
+
+    fn end_column(&self) -> usize {
+        self.names.len() + 1
+    }
+
+    fn line_no(&self) -> usize {
+        if self.header {
+            1
+        } else {
+            usize::try_from(self.rows)
+                .unwrap_or(usize::MAX)
+                .saturating_add(1)
+        }
+    }
+
+    fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn holds(&self, i: usize, kind: CellKind) -> Result<(), String> {
+        let Some((_, dtype)) = self.schema.get_at_index(i) else {
+            return Ok(());
+        };
+        let text = matches!(dtype, DataType::String);
+        let ok = match kind {
+            CellKind::Time => dtype.is_integer() || dtype.is_float() || text,
+            CellKind::Signal => text || matches!(dtype, DataType::Categorical(..)),
+            CellKind::Value => dtype.is_integer() || *dtype == DataType::Boolean || text,
+        };
+        if ok { Ok(()) } else { Err(dtype.to_string()) }
+    }
+}
+
+/// A field as CSV records give it: trimmed, then unquoted.
+fn clean(field: &str) -> &str {
+    let field = field.trim_ascii();
+    if field.len() >= 2 && field.starts_with('"') && field.ends_with('"') {
+        &field[1..field.len() - 1]
+    } else {
+        field
+    }
+}
+
+/// One column of a frame, by type.
+enum Cells {
+    Text(StringChunked),
+    Int(Int64Chunked),
+    Float(Float64Chunked),
+    Bool(BooleanChunked),
+}
+
+impl Cells {
+    fn of(df: &DataFrame, name: &str) -> Result<Cells, String> {
+        let failed = |e: PolarsError| {
+            format!(
+                "cannot decode column '{name}': {}",
+                first_line(&e.to_string())
+            )
+        };
+        let series = df
+            .column(name)
+            .map_err(failed)?
+            .as_materialized_series()
+            .rechunk();
+        Ok(match series.dtype() {
+            DataType::String => Cells::Text(series.str().map_err(failed)?.clone()),
+            DataType::Boolean => Cells::Bool(series.bool().map_err(failed)?.clone()),
+            DataType::Categorical(..) => {
+                let text = series.cast(&DataType::String).map_err(failed)?;
+                Cells::Text(text.str().map_err(failed)?.clone())
+            }
+            d if d.is_integer() => {
+                let ints = series.cast(&DataType::Int64).map_err(failed)?;
+                Cells::Int(ints.i64().map_err(failed)?.clone())
+            }
+            d if d.is_float() => {
+                let floats = series.cast(&DataType::Float64).map_err(failed)?;
+                Cells::Float(floats.f64().map_err(failed)?.clone())
+            }
+            other => return Err(format!("column '{name}' has unsupported type {other}")),
+        })
+    }
+
+    /// Appends cell `i` as text; `false` if it is null or blank.
+    fn render(&self, i: usize, out: &mut String) -> bool {
+        // Writing to a String cannot fail.
+        match self {
+            Cells::Text(ca) => ca.get(i).is_some_and(|s| {
+                out.push_str(s);
+                !s.trim_ascii().is_empty()
+            }),
+            Cells::Int(ca) => ca.get(i).is_some_and(|v| {
+                out.push_str(itoa::Buffer::new().format(v));
+                true
+            }),
+            Cells::Float(ca) => ca.get(i).is_some_and(|v| {
+                let _ = write!(out, "{v}");
+                true
+            }),
+            Cells::Bool(ca) => ca.get(i).is_some_and(|v| {
+                out.push_str(if v { "true" } else { "false" });
+                true
+            }),
+        }
+    }
+}
+
+/// The frames of the queries that read a file, in order, computed on a thread
+/// of its own.
+struct Frames {
+    receiver: Receiver<DataFrame>,
+    worker: Option<JoinHandle<PolarsResult<()>>>,
+}
+
+impl Frames {
+    fn start(path: &Path, options: &IngestOptions) -> Result<Frames, Located> {
+        let failed = |e: PolarsError| failure(path, &e.to_string());
+        let queries = slices(path, options.parquet_slice_rows)?;
+        // A rendezvous channel: the callback (on polars' blocking pool) waits
+        // until the consumer takes the frame, so the engine never runs more than
+        // a frame ahead of it, which bounds memory.
+        let (sender, receiver) = sync_channel::<DataFrame>(0);
+        let callback = PlanCallback::new(move |df: DataFrame| {
+            // Stop the query once nobody reads (the records were dropped).
+            Ok(sender.send(df).is_err())
+        });
+        let rows = NonZeroUsize::new(options.batch_rows.max(1));
+        let queries = queries
+            .into_iter()
+            .map(|lf| {
+                lf.sink_batches(callback.clone(), true, rows)
+                    .map_err(failed)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let worker = std::thread::Builder::new()
+            .name("gardefou-parquet".to_string())
+            .spawn(move || {
+                // One after the other: the frames stay in order.
+                for lf in queries {
+                    lf.collect_with_engine(Engine::Streaming)?;
+                }
+                Ok(())
+            })
+            .map_err(|e| file_error(path, format!("cannot start reading the log: {e}")))?;
+        Ok(Frames {
+            receiver,
+            worker: Some(worker),
+        })
+    }
+
+    /// The next frame, `None` at the end, or polars' error message.
+    fn next(&mut self) -> Option<Result<DataFrame, String>> {
+        if let Ok(df) = self.receiver.recv() {
+            return Some(Ok(df));
+        }
+        // The sender is gone: the query has ended, well or not.
+        let worker = self.worker.take()?;
+        match worker.join() {
+            Ok(Ok(())) => None,
+            Ok(Err(e)) => Some(Err(e.to_string())),
+            Err(_) => Some(Err("the polars query stopped unexpectedly".to_string())),
+        }
+    }
+}
+
+/// The queries that read a file, one per slice of `slice_rows` rows: polars
+/// maps the whole file while a query runs; a query per slice maps it anew and
+/// unmaps it when done, so the file's resident pages stay bounded by a slice's.
+fn slices(path: &Path, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
+    let failed = |e: PolarsError| failure(path, &e.to_string());
+    let slice_rows = slice_rows.max(1);
+    let source = PlRefPath::try_from_path(path).map_err(failed)?;
+    let lf = LazyFrame::scan_parquet(source, scan_args()).map_err(failed)?;
+    let file = open_file(path)?;
+    let rows = ParquetReader::new(file).num_rows().map_err(failed)?;
+    if rows <= slice_rows {
+        return Ok(vec![lf]);
+    }
+    Ok((0..rows)
+        .step_by(slice_rows)
+        .map(|offset| lf.clone().slice(offset as i64, slice_rows as IdxSize))
+        .collect())
+}
