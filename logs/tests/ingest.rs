@@ -763,6 +763,15 @@ fn bad_parquet_files_fail_clearly() {
             value(&good_value),
         ],
     );
+    let typed = dir.path().join("bool_times.parquet");
+    write_parquet(
+        &typed,
+        vec![
+            Column::new("t".into(), vec![false, false, false, true, true]),
+            signal(&good_signal),
+            value(&good_value),
+        ],
+    );
     let backwards_intervals = dir.path().join("backwards_intervals.parquet");
     write_parquet(
         &backwards_intervals,
@@ -780,7 +789,7 @@ fn bad_parquet_files_fail_clearly() {
     };
     // Line = row number + 1 (the column names are line 1); column = position in
     // the schema, from 1.
-    let cases: [Case<&Path>; 7] = [
+    let cases: [Case<&Path>; 8] = [
         (
             &missing,
             &events,
@@ -815,6 +824,14 @@ fn bad_parquet_files_fail_clearly() {
             "unknown signal 'B7'",
         ),
         (&bad_time, &options(2), 6, 1, Some("t"), "bad time '1l0'"),
+        (
+            &typed,
+            &options(2),
+            1,
+            1,
+            None,
+            "column 't' has type bool: expected integers or floats in ms, or RFC 3339 text",
+        ),
         (
             &backwards_intervals,
             &options(2),
