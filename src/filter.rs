@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Subcommand, ValueEnum};
 use diagnoser::model::Model;
-use diagnoser::{Failure, Plant, TimeFormat, TimeUnit};
+use diagnoser::{Failure, Flag, Plant, TimeFormat, TimeUnit};
 use filter_coupling::filter::{Coupling, Filter, Mode, sensor_partition};
 use filter_coupling::rewrite::{Estimate, RewriteOptions, rewrite};
 use filter_coupling::st::{StOptions, generate};
@@ -121,7 +121,10 @@ fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
         for e in &part.sensor_estimates {
             let partition = sensor_partition(&plant, &e.sensor);
             let wanted = args.flags.is_empty()
-                || args.flags.iter().any(|f| *f == format!("def_{partition}"));
+                || args
+                    .flags
+                    .iter()
+                    .any(|f| *f == Flag::def(&partition).to_string());
             if wanted {
                 estimates.push(
                     Estimate::from_model(&e.sensor, &partition, &e.expr, &e.uncertain)
@@ -133,7 +136,7 @@ fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
     for f in &args.flags {
         if !estimates
             .iter()
-            .any(|e| format!("def_{}", e.partition) == *f)
+            .any(|e| Flag::def(&e.partition).to_string() == *f)
         {
             return Err(Failure::bad(format!(
                 "--flags: '{f}' is not the flag of a sensor with a learned estimate"

@@ -14,6 +14,7 @@ pub mod error;
 pub mod expr;
 pub mod faudes;
 pub mod fault;
+pub mod flag;
 pub mod model;
 pub mod plant;
 pub mod signal;
@@ -21,6 +22,7 @@ pub mod time;
 
 pub use error::{Failure, Located, Location};
 pub use fault::FaultTemplate;
+pub use flag::{Flag, FlagKind};
 pub use plant::Plant;
 pub use signal::{Event, Signal, SignalId, SignalKind, SignalTable};
 pub use time::{MS, SECOND, Time, TimeFormat, TimeUnit};

@@ -17,6 +17,7 @@ use toml::Spanned;
 use crate::error::{Located, Location, line_column};
 use crate::expr::Expr;
 use crate::fault::{FaultTarget, FaultTemplate};
+use crate::flag::Flag;
 use crate::signal::{Signal, SignalId, SignalKind, SignalTable};
 use crate::time::{MS, Time, TimeUnit};
 
@@ -105,9 +106,9 @@ pub struct ModbusEntry {
 pub struct ModbusMap {
     /// Each signal's table and address, indexed by [`SignalId`].
     pub signals: Vec<(ModbusTable, u16)>,
-    /// Each flag's name and coil: every `def_` flag in partition order, then
+    /// Each flag and its coil: every `def_` flag in partition order, then
     /// every `suspect_` flag.
-    pub flags: Vec<(String, u16)>,
+    pub flags: Vec<(Flag, u16)>,
 }
 
 impl ModbusMap {
@@ -115,8 +116,8 @@ impl ModbusMap {
     pub const FLAGS_FROM: u16 = 100;
 
     /// The flag coil of `flag`, if the map has it.
-    pub fn flag(&self, flag: &str) -> Option<u16> {
-        self.flags.iter().find(|f| f.0 == flag).map(|f| f.1)
+    pub fn flag(&self, flag: &Flag) -> Option<u16> {
+        self.flags.iter().find(|f| f.0 == *flag).map(|f| f.1)
     }
 }
 
@@ -162,8 +163,14 @@ pub struct Partition {
 
 impl Partition {
     /// The flag raised when a fault of this partition is certain: `def_<name>`.
-    pub fn flag(&self) -> String {
-        format!("def_{}", self.name)
+    pub fn flag(&self) -> Flag {
+        Flag::def(&self.name)
+    }
+
+    /// The flag raised while a fault of this partition is a candidate:
+    /// `suspect_<name>`.
+    pub fn suspect_flag(&self) -> Flag {
+        Flag::suspect(&self.name)
     }
 }
 
@@ -254,12 +261,9 @@ impl Plant {
 
     /// The flags of the partitions, in the order of the default Modbus map:
     /// every `def_<partition>`, then every `suspect_<partition>`.
-    pub fn flags(&self) -> Vec<String> {
+    pub fn flags(&self) -> Vec<Flag> {
         let def = self.partitions.iter().map(Partition::flag);
-        let suspect = self
-            .partitions
-            .iter()
-            .map(|p| format!("suspect_{}", p.name));
+        let suspect = self.partitions.iter().map(Partition::suspect_flag);
         def.chain(suspect).collect()
     }
 
@@ -283,7 +287,7 @@ impl Plant {
                 }
             })
             .collect();
-        let mut flags: Vec<(String, u16)> = self
+        let mut flags: Vec<(Flag, u16)> = self
             .flags()
             .into_iter()
             .zip(ModbusMap::FLAGS_FROM..)
@@ -291,7 +295,7 @@ impl Plant {
         for e in &self.modbus {
             if let Some(id) = self.signals.id(&e.name) {
                 signals[id.index()] = (e.table, e.address);
-            } else if let Some(f) = flags.iter_mut().find(|f| f.0 == e.name) {
+            } else if let Some(f) = flags.iter_mut().find(|f| f.0.to_string() == e.name) {
                 f.1 = e.address;
             }
         }
@@ -754,8 +758,8 @@ impl Checker<'_> {
         let mut known: HashSet<String> = signals.iter().map(|(_, s)| s.name.clone()).collect();
         known.extend(variables.iter().cloned());
         for p in partitions {
-            known.insert(p.flag());
-            known.insert(format!("suspect_{}", p.name));
+            known.insert(p.flag().to_string());
+            known.insert(p.suspect_flag().to_string());
         }
         for (name, _) in observers {
             check_name(name.get_ref()).map_err(|m| self.at(name.span(), "observers", m))?;
@@ -857,7 +861,7 @@ impl Checker<'_> {
         for (name, at) in raw {
             let n = name.get_ref();
             let signal = plant.signals.id(n);
-            if signal.is_none() && !flags.contains(n) {
+            if signal.is_none() && !Flag::parse(n).is_some_and(|f| flags.contains(&f)) {
                 return Err(self.at(
                     name.span(),
                     "modbus",
@@ -904,7 +908,7 @@ impl Checker<'_> {
             .chain(
                 map.flags
                     .iter()
-                    .map(|(f, a)| (f.clone(), (ModbusTable::Coil, *a))),
+                    .map(|(f, a)| (f.to_string(), (ModbusTable::Coil, *a))),
             );
         for (name, place) in named {
             if let Some(other) = taken.insert(place, name.clone()) {

@@ -76,7 +76,7 @@ fn the_spec_form_is_accepted_as_written() {
         })
     );
     assert_eq!(
-        plant.partition_of("F5").map(|p| p.flag()),
+        plant.partition_of("F5").map(|p| p.flag().to_string()),
         Some("def_P".to_string())
     );
     assert!(matches!(
@@ -138,7 +138,7 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
     assert_eq!(at("C5"), (ModbusTable::DiscreteInput, 17));
     assert_eq!(at("A4"), (ModbusTable::Coil, 8));
     // Flags: def_ first, in partition order, then suspect_, from coil 100.
-    let names: Vec<&str> = map.flags.iter().map(|f| f.0.as_str()).collect();
+    let names: Vec<String> = map.flags.iter().map(|f| f.0.to_string()).collect();
     let partitions: Vec<String> = plant.partitions.iter().map(|p| p.name.clone()).collect();
     let expected: Vec<String> = partitions
         .iter()
@@ -148,10 +148,14 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
     assert_eq!(names, expected);
     for (i, (name, coil)) in map.flags.iter().enumerate() {
         let default = ModbusMap::FLAGS_FROM + i as u16;
-        let want = if name == "suspect_C4" { 200 } else { default };
+        let want = if name.to_string() == "suspect_C4" {
+            200
+        } else {
+            default
+        };
         assert_eq!(*coil, want, "{name}");
     }
-    assert_eq!(map.flag("suspect_C4"), Some(200));
+    assert_eq!(map.flag(&diagnoser::Flag::suspect("C4")), Some(200));
 }
 
 #[test]

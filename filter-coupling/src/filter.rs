@@ -522,7 +522,7 @@ fn part_fallbacks(
         if coupling != Coupling::None {
             for p in &plant.partitions {
                 if p.faults.iter().any(|label| stops_part(plant, part, label)) {
-                    flags.push(index[&p.flag()]);
+                    flags.push(index[&p.flag().to_string()]);
                 }
             }
         }
@@ -562,8 +562,8 @@ fn external_slots(plant: &Plant, index: &HashMap<String, usize>, n: usize) -> Ve
         external[index[v]] = true;
     }
     for p in &plant.partitions {
-        external[index[&p.flag()]] = true;
-        external[index[&format!("suspect_{}", p.name)]] = true;
+        external[index[&p.flag().to_string()]] = true;
+        external[index[&p.suspect_flag().to_string()]] = true;
     }
     external
 }
@@ -589,8 +589,8 @@ impl Filter {
             slots.slot(&o.name);
         }
         for p in &plant.partitions {
-            slots.slot(&p.flag());
-            slots.slot(&format!("suspect_{}", p.name));
+            slots.slot(&p.flag().to_string());
+            slots.slot(&p.suspect_flag().to_string());
         }
         let (estimates, clock_defs) = match (model, coupling) {
             (Some(m), c) if c != Coupling::None => estimates_and_clocks(plant, m)?,

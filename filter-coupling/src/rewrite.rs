@@ -21,6 +21,7 @@
 //! value), negative become 0; `prev(s)` reads the estimate's intervals one scan
 //! earlier.
 
+use diagnoser::Flag;
 use diagnoser::expr::Expr;
 
 /// The temporal estimate of one sensor, as intervals of its part's command clock
@@ -105,9 +106,9 @@ pub struct RewriteOptions {
 
 /// The flag expression under which a sensor of `partition` is replaced.
 fn flag(partition: &str, options: RewriteOptions) -> Expr {
-    let def = Expr::Var(format!("def_{partition}"));
+    let def = Expr::Var(Flag::def(partition).to_string());
     if options.use_suspects {
-        Expr::Or(vec![def, Expr::Var(format!("suspect_{partition}"))])
+        Expr::Or(vec![def, Expr::Var(Flag::suspect(partition).to_string())])
     } else {
         def
     }

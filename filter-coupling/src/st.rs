@@ -41,7 +41,7 @@ use std::fmt::Write as _;
 
 use diagnoser::expr::Expr;
 use diagnoser::plant::ObserverRule;
-use diagnoser::{MS, Plant, SignalKind, Time};
+use diagnoser::{Flag, FlagKind, MS, Plant, SignalKind, Time};
 
 use crate::filter::{Filter, Mode, PartIntervals};
 use crate::synthesis::{CombinedLaw, OutputLaw, simplify};
@@ -681,9 +681,9 @@ impl<'a> Gen<'a> {
     fn switch_text(&self, partition: &str) -> String {
         match self.filter.coupling() {
             crate::filter::Coupling::FlagsAndSuspects => {
-                format!("def_{partition} OR suspect_{partition}")
+                format!("{} OR {}", Flag::def(partition), Flag::suspect(partition))
             }
-            _ => format!("def_{partition}"),
+            _ => Flag::def(partition).to_string(),
         }
     }
 
@@ -1560,10 +1560,10 @@ impl<'a> Gen<'a> {
 /// What a flag or variable input is, for its comment.
 fn describe_input(plant: &Plant, name: &str) -> String {
     for p in &plant.partitions {
-        if name == p.flag() {
+        if Flag::names(FlagKind::Def, &p.name, name) {
             return format!("a fault of partition {} is certain (diagnosers)", p.name);
         }
-        if name == format!("suspect_{}", p.name) {
+        if Flag::names(FlagKind::Suspect, &p.name, name) {
             return format!(
                 "partition {} is among the candidates of an ambiguous verdict",
                 p.name

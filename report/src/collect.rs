@@ -9,7 +9,7 @@ use std::collections::{HashMap, VecDeque};
 use diagnoser::diagnosis::{DiagnoserOptions, PartSummary, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::expr::Expr;
 use diagnoser::model::Model;
-use diagnoser::{Event, Plant, Time, TimeFormat};
+use diagnoser::{Event, Flag, FlagKind, Plant, Time, TimeFormat};
 use filter_coupling::filter::{Coupling, Filter};
 use filter_coupling::synthesis::{cofactor, simplify};
 use logs::LogStream;
@@ -389,7 +389,7 @@ impl Replayer<'_> {
     fn raise(&mut self, flag: &str, t: Time, part: &str) {
         self.raised.push(flag.to_string());
         let coupled = self.filter.coupling() != Coupling::None && self.filter.set(flag, true);
-        let partition = flag.strip_prefix("def_").unwrap_or(flag);
+        let partition = Flag::parse(flag).map_or(flag.to_string(), |f| f.partition);
         let sensors: Vec<String> = self
             .filter
             .estimates()
@@ -442,7 +442,7 @@ impl Replayer<'_> {
     fn evaluated(&self, expr: &Expr) -> Expr {
         let mut e = expr.clone();
         for name in expr.names() {
-            if name.starts_with("def_") || name.starts_with("suspect_") {
+            if Flag::parse(name).is_some() {
                 let up = self.raised.iter().any(|f| f == name);
                 e = cofactor(&e, name, up);
             }
@@ -457,7 +457,9 @@ impl Replayer<'_> {
             return (text.to_string(), None);
         };
         let sensor = e.names().into_iter().find_map(|n| {
-            let partition = n.strip_prefix("def_")?;
+            let partition = Flag::parse(n)
+                .filter(|f| f.kind == FlagKind::Def)?
+                .partition;
             self.raised.iter().any(|f| f == n).then(|| {
                 self.filter
                     .estimates()
@@ -640,7 +642,7 @@ mod tests {
         );
         // It ends certain of that fault alone, its partition's flag raised.
         let partition = plant.partition_of(&label).expect("a partition");
-        let flag = format!("def_{}", partition.name);
+        let flag = partition.flag().to_string();
         let summary = &r.summary[part];
         assert_eq!(summary.verdict, VerdictKind::Certain, "{summary:?}");
         assert_eq!(summary.labels, [label.as_str()]);

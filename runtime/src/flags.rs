@@ -6,10 +6,9 @@
 //! ask for a confirmation time: the flag goes up only once the verdict that
 //! raised it has held that long in event time ([`FlagBoard::confirm`]).
 
-use diagnoser::Plant;
-use diagnoser::Time;
 use diagnoser::diagnosis::Verdict;
 use diagnoser::diagnosis::fusion::PLANT_VIEW;
+use diagnoser::{Flag, Plant, Time};
 
 /// The flags raised by the verdicts seen so far.
 #[derive(Debug, Clone, Default)]
@@ -88,7 +87,7 @@ impl FlagBoard {
         let now: Vec<String> = self
             .parts
             .iter()
-            .flat_map(|(_, _, s)| s.iter().map(|p| format!("suspect_{p}")))
+            .flat_map(|(_, _, s)| s.iter().map(|p| Flag::suspect(p.as_str()).to_string()))
             .fold(Vec::new(), |mut acc, s| {
                 if !acc.contains(&s) {
                     acc.push(s);
@@ -146,7 +145,11 @@ impl FlagBoard {
 
     /// Every flag of `plant` ([`Plant::flags`] order) as up or down.
     pub fn image(&self, plant: &Plant) -> Vec<bool> {
-        plant.flags().iter().map(|f| self.is_up(f)).collect()
+        plant
+            .flags()
+            .iter()
+            .map(|f| self.is_up(&f.to_string()))
+            .collect()
     }
 }
 
@@ -191,7 +194,7 @@ mod tests {
             .into_iter()
             .zip(image)
             .filter(|(_, up)| *up)
-            .map(|(f, _)| f)
+            .map(|(f, _)| f.to_string())
             .collect();
         assert_eq!(up, ["def_C4", "def_P"]);
     }

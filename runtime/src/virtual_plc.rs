@@ -254,8 +254,8 @@ fn scan_loop(
     let mut flags: Vec<FlagCoil> = map
         .flags
         .iter()
-        .map(|(name, coil)| FlagCoil {
-            name: name.clone(),
+        .map(|(flag, coil)| FlagCoil {
+            name: flag.to_string(),
             coil: usize::from(*coil),
             applied: false,
         })

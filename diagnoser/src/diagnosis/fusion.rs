@@ -24,7 +24,7 @@
 //! when they all lie in one partition (and, like every flag, never lowered).
 
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
-use crate::{Plant, Time};
+use crate::{Flag, FlagKind, Plant, Time};
 
 /// The part name of plant-view verdict lines.
 pub const PLANT_VIEW: &str = "plant";
@@ -167,7 +167,7 @@ impl Coordinator {
             if let Some(p) = suspects.first().cloned()
                 && all_in(&p)
             {
-                let flag = format!("def_{p}");
+                let flag = Flag::def(p.as_str()).to_string();
                 if !self.flags.contains(&flag) {
                     self.flags.push(flag);
                 }
@@ -176,7 +176,7 @@ impl Coordinator {
         let order = |name: &str| {
             self.partition_order
                 .iter()
-                .position(|p| name.strip_prefix("def_") == Some(p.as_str()) || name == p)
+                .position(|p| Flag::names(FlagKind::Def, p, name) || name == p)
                 .unwrap_or(usize::MAX)
         };
         suspects.sort_by_key(|s| order(s));

@@ -7,7 +7,7 @@ use super::fusion::Coordinator;
 use super::part::PartDiagnoser;
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
 use crate::model::Model;
-use crate::{Event, Plant, Time, TimeUnit};
+use crate::{Event, Flag, Plant, Time, TimeUnit};
 
 /// Settings of the diagnosers.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -616,7 +616,7 @@ impl PlantDiagnoser {
             labels: names,
             flags: bits(run.flags)
                 .into_iter()
-                .map(|n| format!("def_{n}"))
+                .map(|n| Flag::def(n).to_string())
                 .collect(),
             suspects: bits(labels.suspects),
             reason,

@@ -45,7 +45,7 @@ use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
 
 use diagnoser::plant::{ModbusMap, ModbusTable};
-use diagnoser::{Event, Failure, Plant, SignalId, Time, TimeFormat};
+use diagnoser::{Event, Failure, Flag, FlagKind, Plant, SignalId, Time, TimeFormat};
 
 use super::source::{Item, Link, LiveClock, Source};
 /// Longest wait for a reply: a poll unanswered this long is skipped, and a
@@ -69,7 +69,7 @@ pub struct ModbusSource {
     unit: u8,
     map: ModbusMap,
     /// Flags in [`Plant::flags`] order with their coils.
-    flags: Vec<(String, u16)>,
+    flags: Vec<(Flag, u16)>,
     /// Wall time between polls.
     period: Duration,
     speed: f64,
@@ -629,13 +629,13 @@ impl<'a> Session<'a> {
     /// repair). A `suspect_` flag follows the present doubts, not an earlier
     /// run's.
     fn adopt_flags(&mut self, link: &mut Link, adopted: &mut [bool]) -> Result<(), Ended> {
-        let coils: Vec<(usize, String, u16)> = self
+        let coils: Vec<(usize, Flag, u16)> = self
             .source
             .flags
             .iter()
             .enumerate()
-            .filter(|(_, (name, _))| name.starts_with("def_"))
-            .map(|(i, (name, coil))| (i, name.clone(), *coil))
+            .filter(|(_, (flag, _))| flag.kind == FlagKind::Def)
+            .map(|(i, (flag, coil))| (i, flag.clone(), *coil))
             .collect();
         for (index, name, coil) in coils {
             let [ah, al] = coil.to_be_bytes();
@@ -651,7 +651,7 @@ impl<'a> Session<'a> {
             .iter()
             .zip(adopted.iter())
             .filter(|(_, up)| **up)
-            .map(|(f, _)| f.0.clone())
+            .map(|(f, _)| f.0.to_string())
             .collect();
         if !found.is_empty() && link.items.blocking_send(Item::FoundRaised(found)).is_err() {
             return Err(Ended::Gone);
@@ -704,7 +704,7 @@ impl<'a> Session<'a> {
             self.written[i] = Some(up);
             count += 1;
             if up {
-                up_names.push(self.source.flags[i].0.clone());
+                up_names.push(self.source.flags[i].0.to_string());
             }
         }
         if count > 0 {

@@ -204,7 +204,7 @@ impl Status {
             latency: Latency::default(),
             evidence: Latency::default(),
             time,
-            all_flags: plant.flags(),
+            all_flags: plant.flags().iter().map(ToString::to_string).collect(),
         }
     }
 

@@ -1,6 +1,6 @@
 //! End-to-end tests of `gardefou report` without a browser: what the page says
 //! about the shipped F2 run, and bad input. The page in a real browser is
-//! `tests/report_browser.rs`.
+//! `tests/it/report_browser.rs`.
 
 use std::fs;
 use std::path::Path;

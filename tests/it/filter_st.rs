@@ -1,7 +1,7 @@
 //! The Structured Text of `gardefou filter st` against the Rust filter.
 //!
 //! The generated function block is parsed and run by a small interpreter
-//! (`tests/st/mod.rs`, IEC 61131-3 TON semantics included) beside the Rust
+//! (`tests/it/st.rs`, IEC 61131-3 TON semantics included) beside the Rust
 //! [`Filter`], on the simulated sorting line: each scan, the synthesised
 //! control law proposes orders (with a few deliberately wrong ones), both
 //! filters get the same sensors, proposals and flags, and every order, every
@@ -11,7 +11,7 @@
 //!
 //! When matiec's `iec2c` is on PATH the generated texts are also compiled by it.
 
-mod st;
+use crate::st;
 
 use std::collections::BTreeMap;
 use std::path::Path;

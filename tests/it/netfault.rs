@@ -2,7 +2,7 @@
 //! reordering, drops, stalls, resets and garbage, measured from a client that
 //! pipelines requests to a small Modbus-like server; and the stdin feeder.
 
-mod support;
+use crate::support;
 
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};

@@ -15,7 +15,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
-mod support;
+use crate::support;
 use support::netfault::{Faults, Proxy};
 
 fn path(rel: &str) -> String {

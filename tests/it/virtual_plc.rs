@@ -244,7 +244,7 @@ async fn virtual_plc_serves_the_running_line_over_modbus() {
         .position(|p| p.name == "C4")
         .expect("partition C4");
     let def_c4 = 100 + c4 as u16;
-    assert_eq!(map.flag("def_C4"), Some(def_c4));
+    assert_eq!(map.flag(&diagnoser::Flag::def("C4")), Some(def_c4));
     assert_eq!(image_addresses("C4"), (ModbusTable::DiscreteInput, 4));
     assert_eq!(image_addresses("C5"), (ModbusTable::DiscreteInput, 5));
     assert_eq!(image_addresses("A4"), (ModbusTable::Coil, 4));

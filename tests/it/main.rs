@@ -1,0 +1,31 @@
+//! The end-to-end tests of the `gardefou` binary, in one test binary.
+//!
+//! Each module is one verb or one scenario. They run the real binary
+//! (`CARGO_BIN_EXE_gardefou`) against real peers on loopback (pymodbus,
+//! Chromium, Graphviz), with helpers shared through [`support`] and [`st`].
+//! One binary links the workspace once instead of once per file.
+//!
+//! `tests/monitor_http.rs` stays a binary of its own: it raises this process's
+//! descriptor limit and floods a monitor with nearly as many connections as the
+//! process may open, which would starve the tests beside it.
+
+mod support;
+
+mod check_filter;
+mod control_law;
+mod demo_cli;
+mod diagnose_cli;
+mod diagnosis_soundness;
+mod filter_cli;
+mod filter_st;
+mod learn_cli;
+mod monitor_can;
+mod monitor_cli;
+mod monitor_modbus;
+mod netfault;
+mod report_browser;
+mod report_cli;
+mod shipped_datasets;
+mod simulate_cli;
+mod st;
+mod virtual_plc;
