@@ -34,10 +34,10 @@
 //! into a corner where another one still sits (the pushed one falls off and counts
 //! as lost).
 
-use diagnoser::expr::Expr;
-use diagnoser::{FaultTemplate, MS, Plant, SignalId, Time};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
+use vocabulary::expr::Expr;
+use vocabulary::{FaultTemplate, MS, Plant, SignalId, Time};
 
 use crate::sim::{Controller, Damage, Physics};
 

@@ -1,8 +1,8 @@
 //! Fault injection: which fault, from when, and how it bends what the PLC reads
 //! and what the actuators do.
 
-use diagnoser::fault::FaultTarget;
-use diagnoser::{
+use vocabulary::fault::FaultTarget;
+use vocabulary::{
     Event, FaultTemplate, MS, Plant, SECOND, SignalId, SignalKind, SignalTable, Time, TimeUnit,
     time,
 };

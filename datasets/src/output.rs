@@ -9,8 +9,8 @@ use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use diagnoser::{Event, Plant, SignalId, Time, TimeFormat};
 use logs::{EventWriter, IntervalWriter, ScanWriter};
+use vocabulary::{Event, Plant, SignalId, Time, TimeFormat};
 
 use crate::inject::{time_value, truth_json};
 use crate::sim::{Controller, Physics, ScanSink, SimConfig, SimReport, run_with_showing};
@@ -194,7 +194,7 @@ fn write_json(path: &Path, value: &serde_json::Value) -> io::Result<()> {
 
 /// A plant file's text with the run's scan period.
 fn with_scan_period(source: &str, scan_period: Time) -> String {
-    let ms = diagnoser::TimeUnit::Ms.format(scan_period);
+    let ms = vocabulary::TimeUnit::Ms.format(scan_period);
     source
         .lines()
         .map(|l| {

@@ -1,16 +1,16 @@
 //! The scan loop shared by every simulated plant.
 
-use diagnoser::{FaultTemplate, Plant, Time};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use vocabulary::{FaultTemplate, Plant, Time};
 
 use crate::inject::{Injection, SensorInjector};
 
 /// The PLC program: called once per scan.
 ///
 /// `io` holds one value per signal of the plant, indexed by
-/// [`diagnoser::SignalId::index`]: sensors as read in this scan, actuators as
+/// [`vocabulary::SignalId::index`]: sensors as read in this scan, actuators as
 /// ordered in the previous scan. The controller writes its new orders into the
 /// actuator entries and must leave the sensor entries alone. The constraint-based
 /// safety filter plugs in through this same trait.
@@ -273,7 +273,7 @@ pub struct MemorySink {
     /// Time of the first scan.
     pub start: Time,
     /// Every change after the first scan, in order.
-    pub events: Vec<diagnoser::Event>,
+    pub events: Vec<vocabulary::Event>,
     last: Vec<bool>,
 }
 
@@ -285,9 +285,9 @@ impl ScanSink for MemorySink {
         } else {
             for (i, (&old, &new)) in self.last.iter().zip(values).enumerate() {
                 if old != new {
-                    self.events.push(diagnoser::Event {
+                    self.events.push(vocabulary::Event {
                         t,
-                        signal: diagnoser::SignalId(i as u32),
+                        signal: vocabulary::SignalId(i as u32),
                         value: new,
                     });
                 }

@@ -15,9 +15,9 @@
 //!
 //! The turntable's rotation follows seed 002's timing (see [`TurntableTiming`]).
 
-use diagnoser::{FaultTemplate, MS, Plant, SignalId, Time};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
+use vocabulary::{FaultTemplate, MS, Plant, SignalId, Time};
 
 use crate::sim::{Controller, Damage, MemorySink, Physics, SimConfig, SimReport};
 

@@ -7,8 +7,8 @@ use datasets::cylinders::{
 };
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sim::{Controller, MemorySink, Physics, SimConfig, SimReport, run};
-use diagnoser::expr::Expr;
-use diagnoser::{MS, SECOND, Time};
+use vocabulary::expr::Expr;
+use vocabulary::{MS, SECOND, Time};
 
 fn injections(faults: &[&str]) -> Vec<Injection> {
     let plant = plant();
@@ -60,7 +60,7 @@ fn counter(report: &SimReport, name: &str) -> u64 {
 
 fn id(name: &str) -> usize {
     // Parsed once: `eval` looks names up for every state of an hour-long log.
-    static PLANT: std::sync::OnceLock<diagnoser::Plant> = std::sync::OnceLock::new();
+    static PLANT: std::sync::OnceLock<vocabulary::Plant> = std::sync::OnceLock::new();
     PLANT
         .get_or_init(plant)
         .signals
@@ -122,11 +122,11 @@ fn eval(e: &Expr, prev: &[bool], cur: &[bool]) -> bool {
 
 #[test]
 fn shipped_plant_file_parses_with_the_seed_constraints() {
-    let p = diagnoser::Plant::parse(PLANT_TOML, std::path::Path::new("cylinders.toml"))
+    let p = vocabulary::Plant::parse(PLANT_TOML, std::path::Path::new("cylinders.toml"))
         .expect("valid plant file");
     assert_eq!(p.name, "cylinders");
     assert_eq!(p.scan_period, 10 * MS);
-    assert_eq!(p.time_unit, diagnoser::TimeUnit::Ms);
+    assert_eq!(p.time_unit, vocabulary::TimeUnit::Ms);
     assert_eq!(p.signals.len(), 16);
     assert_eq!(p.variables, ["X1", "X11", "X21", "X31"]);
     assert_eq!(p.parts.len(), 4);
@@ -488,12 +488,14 @@ fn combined_constraints_come_from_the_plant_file() {
         "expr = \"Q12 & Q9\"\npriority = \"Q9\"",
     );
     assert_ne!(flipped, PLANT_TOML);
-    let p = diagnoser::Plant::parse(&flipped, std::path::Path::new("flipped.toml")).expect("valid");
+    let p =
+        vocabulary::Plant::parse(&flipped, std::path::Path::new("flipped.toml")).expect("valid");
     let ids = CylinderIds::resolve(&p).expect("resolves");
     assert_eq!(ids.combined, [(0, 1), (1, 2), (2, 3), (0, 3)]);
 
     let guarded = PLANT_TOML.replace("expr = \"Q12 & Q9\"", "expr = \"Q12 & Q9 & I13\"");
-    let p = diagnoser::Plant::parse(&guarded, std::path::Path::new("guarded.toml")).expect("valid");
+    let p =
+        vocabulary::Plant::parse(&guarded, std::path::Path::new("guarded.toml")).expect("valid");
     let err = CylinderIds::resolve(&p).expect_err("the control cannot apply a conditional CSc");
     assert!(err.contains("CSc4"), "{err}");
 }
@@ -519,7 +521,8 @@ fn csc4_priority_matters_with_a_single_object() {
         "expr = \"Q12 & Q9\"\npriority = \"Q9\"",
     );
     assert_ne!(flipped, PLANT_TOML);
-    let p = diagnoser::Plant::parse(&flipped, std::path::Path::new("flipped.toml")).expect("valid");
+    let p =
+        vocabulary::Plant::parse(&flipped, std::path::Path::new("flipped.toml")).expect("valid");
     let ids = CylinderIds::resolve(&p).expect("resolves");
     let (report, _) = simulate_rig(one(), 120 * SECOND, 1, &[], |_| ConstraintControl::new(ids));
     assert!(

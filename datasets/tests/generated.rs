@@ -9,10 +9,10 @@ use datasets::generated::{GeneratedPlant, Size};
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sim::{Controller, MemorySink, ScanSink, SimConfig, Stepper, run_with_showing};
 use diagnoser::diagnosis::part::MAX_PART_SIGNALS;
-use diagnoser::{FaultTemplate, SECOND, Time};
 use filter_coupling::filter::{Coupling, Filter};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use vocabulary::{FaultTemplate, SECOND, Time};
 
 const HOUR: Time = 3600 * SECOND;
 
@@ -249,7 +249,7 @@ fn a_reckless_program_does_damage_of_every_kind() {
             .plant()
             .signals
             .iter()
-            .filter(|(_, s)| s.kind == diagnoser::SignalKind::Actuator)
+            .filter(|(_, s)| s.kind == vocabulary::SignalKind::Actuator)
             .map(|(id, _)| id.index())
             .collect();
         let mut control = Reckless(ChaCha8Rng::seed_from_u64(seed), actuators);

@@ -4,7 +4,7 @@
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sim::{Controller, MemorySink, SimConfig, SimReport, run};
 use datasets::sorting::{SortingConfig, SortingIds, SortingLine, SynthesisedControl, plant};
-use diagnoser::{Event, MS, SECOND, Time};
+use vocabulary::{Event, MS, SECOND, Time};
 
 fn simulate<C: Controller>(
     duration: Time,

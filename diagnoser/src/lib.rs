@@ -1,28 +1,24 @@
-//! Core types of gardefou (time, signals, events, plant files, fault templates,
-//! models) and the diagnosers that run on them.
+//! The diagnosers of gardefou: one timed diagnoser per plant part, over the
+//! fault modes of its learned model, run on-line event by event; their verdicts
+//! (normal, certain fault, ambiguous) and flags; the fusion of the parts'
+//! verdicts into the plant's; the compiled diagnoser automaton and
+//! diagnosability ([`diagnosis`]); and libFAUDES generators, read and checked
+//! for event-diagnosability ([`faudes`]).
 //!
-//! Every other crate of the workspace depends on this one; it depends on none of
-//! them. It is kept free of heavy dependencies (no polars, no tokio) so that it
+//! It speaks the [`vocabulary`] crate's types, re-exported here (`diagnoser::Plant`
+//! is `vocabulary::Plant`) so that callers of the diagnosers need one import.
+//! It is kept free of heavy dependencies (no polars, no tokio) so that it
 //! builds and tests fast.
 //!
-//! It is not for: reading or writing logs (that is `logs`), evaluating or
-//! rewriting the safety filter (`filter-coupling`), or simulating plants
-//! (`datasets`).
+//! It is not for: reading or writing logs (`logs`), learning models
+//! (`learning`), evaluating or rewriting the safety filter (`filter-coupling`),
+//! or simulating plants (`datasets`).
 
 pub mod diagnosis;
-pub mod error;
-pub mod expr;
 pub mod faudes;
-pub mod fault;
-pub mod flag;
-pub mod model;
-pub mod plant;
-pub mod signal;
-pub mod time;
 
-pub use error::{Failure, Located, Location};
-pub use fault::FaultTemplate;
-pub use flag::{Flag, FlagKind};
-pub use plant::Plant;
-pub use signal::{Event, Signal, SignalId, SignalKind, SignalTable};
-pub use time::{MS, SECOND, Time, TimeFormat, TimeUnit};
+pub use vocabulary::{
+    Event, Failure, FaultTemplate, Flag, FlagKind, Located, Location, MS, Plant, SECOND, Signal,
+    SignalId, SignalKind, SignalTable, Time, TimeFormat, TimeUnit, error, expr, fault, flag, model,
+    plant, signal, time,
+};

@@ -7,8 +7,8 @@
 
 use std::collections::HashMap;
 
-use diagnoser::model::{Model, PartModel};
-use diagnoser::{Located, Location, Plant, Time};
+use vocabulary::model::{Model, PartModel};
+use vocabulary::{Located, Location, Plant, Time};
 
 use crate::replay::{Change, PartRoutes};
 use logs::LogStream;

@@ -2,7 +2,7 @@
 
 use std::fmt::Write;
 
-use diagnoser::model::{Model, PartModel};
+use vocabulary::model::{Model, PartModel};
 
 /// The DOT text of one part's model: states as nodes (stable states, where the
 /// part waits for a command, drawn double), transitions as edges labelled with

@@ -8,12 +8,12 @@
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
-use diagnoser::model::{
+use vocabulary::model::{
     ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, PartModel,
     Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule, StateModel,
     TransitionModel,
 };
-use diagnoser::{Located, Plant, SignalKind, Time};
+use vocabulary::{Located, Plant, SignalKind, Time};
 
 use crate::replay::PartRoutes;
 use logs::LogStream;
@@ -63,7 +63,7 @@ impl Default for LearnOptions {
             drift: 3.0,
             learn_inputs: false,
             tight_ratio: 0.5,
-            timed_spread: diagnoser::SECOND,
+            timed_spread: vocabulary::SECOND,
             timed_relative: 0.2,
             min_samples: 20,
         }

@@ -1,7 +1,7 @@
 //! Walking a log scan by scan, as the parts see it: the shared walk of the
 //! learner and of the checker.
 
-use diagnoser::{Event, Located, SignalId, Time};
+use vocabulary::{Event, Located, SignalId, Time};
 
 use logs::Batches;
 

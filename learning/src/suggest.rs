@@ -68,7 +68,7 @@
 
 use std::fmt::Write as _;
 
-use diagnoser::{Event, Located, Location, MS, SECOND, SignalId, SignalKind, SignalTable, Time};
+use vocabulary::{Event, Located, Location, MS, SECOND, SignalId, SignalKind, SignalTable, Time};
 
 use logs::LogStream;
 

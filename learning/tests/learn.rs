@@ -6,11 +6,11 @@ use std::path::PathBuf;
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
-use diagnoser::model::{Model, PartModel};
-use diagnoser::{MS, SECOND, Time, TimeFormat, TimeUnit};
 use learning::check::check;
 use learning::learn::{LearnOptions, Learner};
 use logs::{LogFormat, LogStream};
+use vocabulary::model::{Model, PartModel};
+use vocabulary::{MS, SECOND, Time, TimeFormat, TimeUnit};
 
 fn simulate(duration: Time, seed: u64, faults: &[&str]) -> MemorySink {
     let plant = plant();
@@ -161,7 +161,7 @@ fn a_model_accepts_another_normal_run_and_catches_f2() {
 }
 
 /// One log of a cylinder `Y`→`B` whose stroke takes `stroke` ms, 40 cycles.
-fn cylinder_log(stroke: i64, name: &str, plant: &diagnoser::Plant) -> LogStream {
+fn cylinder_log(stroke: i64, name: &str, plant: &vocabulary::Plant) -> LogStream {
     let (y, b) = (
         plant.signals.id("Y").expect("Y"),
         plant.signals.id("B").expect("B"),
@@ -175,7 +175,7 @@ fn cylinder_log(stroke: i64, name: &str, plant: &diagnoser::Plant) -> LogStream 
             (2000, y, false),
             (2000 + stroke, b, false),
         ] {
-            events.push(diagnoser::Event {
+            events.push(vocabulary::Event {
                 t: (t + dt) * MS,
                 signal,
                 value,
@@ -193,8 +193,8 @@ fn cylinder_log(stroke: i64, name: &str, plant: &diagnoser::Plant) -> LogStream 
     }
 }
 
-fn stroke_guard(strokes: &[i64], drift: f64) -> diagnoser::model::Guard {
-    let plant = diagnoser::Plant::parse(
+fn stroke_guard(strokes: &[i64], drift: f64) -> vocabulary::model::Guard {
+    let plant = vocabulary::Plant::parse(
         "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
          B = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\nactuators = [\"Y\"]\nsensors = [\"B\"]\n",
         std::path::Path::new("c.toml"),
@@ -221,7 +221,7 @@ fn stroke_guard(strokes: &[i64], drift: f64) -> diagnoser::model::Guard {
 
 #[test]
 fn guards_widen_by_the_drift_between_logs() {
-    let close = |g: diagnoser::model::Guard, lo: f64, hi: f64| {
+    let close = |g: vocabulary::model::Guard, lo: f64, hi: f64| {
         assert!(
             (g.lo - lo).abs() < 0.01 && (g.hi - hi).abs() < 0.01,
             "[{}, {}], expected [{lo}, {hi}]",
@@ -242,18 +242,18 @@ fn guards_widen_by_the_drift_between_logs() {
 }
 
 /// A part `cyl` of one cylinder (order `Y`, end switch `B`) and one more sensor.
-fn cylinder_and_sensor(sensor: &str) -> diagnoser::Plant {
+fn cylinder_and_sensor(sensor: &str) -> vocabulary::Plant {
     let text = format!(
         "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = {{ kind = \"actuator\" }}\n\
          B = {{ kind = \"sensor\" }}\n{sensor} = {{ kind = \"sensor\" }}\n[[parts]]\n\
          name = \"cyl\"\nactuators = [\"Y\"]\nsensors = [\"B\", \"{sensor}\"]\n"
     );
-    diagnoser::Plant::parse(&text, std::path::Path::new("c.toml")).expect("plant")
+    vocabulary::Plant::parse(&text, std::path::Path::new("c.toml")).expect("plant")
 }
 
 #[test]
 fn a_sensor_no_order_moves_is_classified_an_input() {
-    use diagnoser::model::SensorKind;
+    use vocabulary::model::SensorKind;
     let plant = cylinder_and_sensor("R");
     let ids = |n: &str| plant.signals.id(n).expect("signal");
     let (y, b, r) = (ids("Y"), ids("B"), ids("R"));
@@ -269,7 +269,7 @@ fn a_sensor_no_order_moves_is_classified_an_input() {
             (t + 2500, b, false),
             (ready, r, k % 2 == 0),
         ] {
-            events.push(diagnoser::Event {
+            events.push(vocabulary::Event {
                 t: at * MS,
                 signal,
                 value,
@@ -322,7 +322,7 @@ fn a_sensor_no_order_moves_is_classified_an_input() {
 
 /// A plant of one cylinder part per name pair `(Y, B)`: order `Y` drives the
 /// end switch `B`.
-fn cylinders_plant(cylinders: &[(&str, &str)]) -> diagnoser::Plant {
+fn cylinders_plant(cylinders: &[(&str, &str)]) -> vocabulary::Plant {
     let mut text = String::from("name = \"c\"\nscan_period_ms = 10\n[signals]\n");
     for (y, b) in cylinders {
         text += &format!("{y} = {{ kind = \"actuator\" }}\n{b} = {{ kind = \"sensor\" }}\n");
@@ -330,14 +330,14 @@ fn cylinders_plant(cylinders: &[(&str, &str)]) -> diagnoser::Plant {
     for (y, b) in cylinders {
         text += &format!("[[parts]]\nname = \"{y}\"\nactuators = [\"{y}\"]\nsensors = [\"{b}\"]\n");
     }
-    diagnoser::Plant::parse(&text, std::path::Path::new("c.toml")).expect("plant")
+    vocabulary::Plant::parse(&text, std::path::Path::new("c.toml")).expect("plant")
 }
 
 /// One log of timed edges `(ms, signal, value)`, from every signal at 0.
-fn log_of(plant: &diagnoser::Plant, name: &str, edges: &[(i64, &str, bool)]) -> LogStream {
-    let mut events: Vec<diagnoser::Event> = edges
+fn log_of(plant: &vocabulary::Plant, name: &str, edges: &[(i64, &str, bool)]) -> LogStream {
+    let mut events: Vec<vocabulary::Event> = edges
         .iter()
-        .map(|&(t, s, value)| diagnoser::Event {
+        .map(|&(t, s, value)| vocabulary::Event {
             t: t * MS,
             signal: plant.signals.id(s).expect("signal"),
             value,
@@ -368,7 +368,7 @@ fn strokes(y: &'static str, b: &'static str, strokes: &[i64]) -> Vec<(i64, &'sta
     edges
 }
 
-fn learn_logs(plant: &diagnoser::Plant, logs: &[Vec<(i64, &str, bool)>]) -> Model {
+fn learn_logs(plant: &vocabulary::Plant, logs: &[Vec<(i64, &str, bool)>]) -> Model {
     let mut learner = Learner::new(plant, LearnOptions::default()).expect("learner");
     for (i, edges) in logs.iter().enumerate() {
         learner
@@ -378,7 +378,7 @@ fn learn_logs(plant: &diagnoser::Plant, logs: &[Vec<(i64, &str, bool)>]) -> Mode
     learner.finish()
 }
 
-fn transition<'m>(part: &'m PartModel, event: &str) -> &'m diagnoser::model::TransitionModel {
+fn transition<'m>(part: &'m PartModel, event: &str) -> &'m vocabulary::model::TransitionModel {
     part.transitions
         .iter()
         .find(|t| t.event == event)

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
-use diagnoser::{MS, Plant, SECOND, SignalKind, TimeFormat, TimeUnit};
 use learning::suggest::{SuggestOptions, Suggestion, suggest_parts, to_toml};
 use logs::{LogFormat, LogStream};
+use vocabulary::{MS, Plant, SECOND, SignalKind, TimeFormat, TimeUnit};
 
 /// One simulated hour of normal operation, seed 7, as a log stream.
 fn sorting_hour() -> LogStream {
@@ -59,7 +59,7 @@ fn suggest() -> (Plant, Suggestion) {
     (plant, suggestion)
 }
 
-fn names(plant: &Plant, ids: &[diagnoser::SignalId]) -> Vec<String> {
+fn names(plant: &Plant, ids: &[vocabulary::SignalId]) -> Vec<String> {
     ids.iter()
         .map(|&id| plant.signals.name(id).to_string())
         .collect()

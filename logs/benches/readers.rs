@@ -1,26 +1,21 @@
-//! The two CSV readers on the same files: the line readers of `diagnoser::log`
-//! against polars (`logs`'s columnar path).
+//! The log readers on given files, as `logs::open` streams them.
 //!
 //! ```text
-//! cargo bench -p learning --bench readers -- PLANT FILE...
+//! cargo bench -p logs --features parquet --bench readers -- PLANT FILE...
 //! ```
 //!
-//! Each FILE (events, intervals or scans CSV, detected from its header) is read
-//! to the end by each reader, three times, each time in a process of its own so
-//! that the peak resident size is the reader's alone. Prints one markdown row
-//! per file and reader: events read, median wall time, events and megabytes
-//! per second, and the largest peak resident size of the three runs.
-//!
-//! The line reader of the events and scans forms is the streaming one that
-//! `ingest::open` uses past its memory budget; the intervals form's is
-//! `logs::read_intervals_as_events`, which holds the log in memory.
+//! Each FILE (events, intervals or scans, CSV or Parquet, detected) is read to
+//! the end three times, each time in a process of its own so that the peak
+//! resident size is the reader's alone. Prints one markdown row per file:
+//! events read, median wall time, events and megabytes per second, and the
+//! largest peak resident size of the three runs.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use diagnoser::Plant;
 use logs::{IngestOptions, detect_format, open};
+use vocabulary::Plant;
 
 const RUNS: usize = 3;
 

@@ -45,7 +45,7 @@ use std::fmt;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 
-use diagnoser::{Event, Located, Location, Plant, SignalId, Time, TimeFormat, TimeUnit};
+use vocabulary::{Event, Located, Location, Plant, SignalId, Time, TimeFormat, TimeUnit};
 
 use super::{IngestOptions, LogFormat, LogStream};
 
@@ -148,7 +148,7 @@ impl std::error::Error for FrameError {}
 ///
 /// ```
 /// use std::path::Path;
-/// use diagnoser::Plant;
+/// use vocabulary::Plant;
 /// use logs::candump::PdoDecoder;
 ///
 /// let plant = Plant::parse(

@@ -10,7 +10,7 @@ use std::fmt::Write as _;
 use std::io::{self, BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use diagnoser::{Located, Location, SignalTable, Time, TimeFormat};
+use vocabulary::{Located, Location, SignalTable, Time, TimeFormat};
 
 use crate::rows::Records;
 
@@ -166,7 +166,7 @@ pub(crate) fn wrong_initial(values: usize, signals: usize) -> io::Error {
 }
 
 /// The error for an event of a signal the table does not have.
-pub(crate) fn no_signal(id: diagnoser::SignalId) -> io::Error {
+pub(crate) fn no_signal(id: vocabulary::SignalId) -> io::Error {
     invalid_input(format!("no signal with id {}", id.0))
 }
 

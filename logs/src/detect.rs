@@ -3,7 +3,7 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
-use diagnoser::{Located, Location};
+use vocabulary::{Located, Location};
 
 use crate::LogFormat;
 

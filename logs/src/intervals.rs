@@ -21,7 +21,7 @@
 use std::io::{self, BufRead, BufWriter, Write};
 use std::path::Path;
 
-use diagnoser::{Event, Located, Location, SignalId, SignalTable, Time, TimeFormat, TimeUnit};
+use vocabulary::{Event, Located, Location, SignalId, SignalTable, Time, TimeFormat, TimeUnit};
 
 use crate::csv::{self, CsvRecords, TimeText};
 use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};

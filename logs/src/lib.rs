@@ -27,7 +27,7 @@
 //! line ends, an optional UTF-8 byte-order mark, blank lines ignored,
 //! whitespace around fields ignored, and fields optionally wrapped in double
 //! quotes (with no comma or quote inside). Readers stop at the first problem
-//! and report it as a one-line [`Located`](diagnoser::Located) error
+//! and report it as a one-line [`Located`](vocabulary::Located) error
 //! (`file:line:column: field 'x': message`); they never panic.
 //!
 //! It is not for: what the events mean (the diagnosers, the learner), or
@@ -36,7 +36,7 @@
 //! ```
 //! use std::path::Path;
 //! use logs::{EventWriter, TimeFormatChoice, read_events_from};
-//! use diagnoser::{Event, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit, MS};
+//! use vocabulary::{Event, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit, MS};
 //!
 //! let mut signals = SignalTable::new();
 //! for name in ["C4", "A4"] {
@@ -85,7 +85,7 @@ pub use scans::{
 };
 pub use stream::{Batches, IngestOptions, LogEnd, LogFormat, LogStream, open};
 
-use diagnoser::{Event, Time, TimeFormat, TimeUnit};
+use vocabulary::{Event, Time, TimeFormat, TimeUnit};
 
 /// How a reader learns the representation of a log's timestamps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

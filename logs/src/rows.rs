@@ -12,7 +12,7 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::Path;
 
-use diagnoser::{Located, Location, SignalId, SignalTable, Time, TimeFormat};
+use vocabulary::{Located, Location, SignalId, SignalTable, Time, TimeFormat};
 
 use super::TimeFormatChoice;
 
@@ -59,7 +59,7 @@ pub enum CellKind {
 impl CellKind {
     /// What a column of this kind may hold, for messages (`unit`: the unit of
     /// numeric timestamps).
-    pub fn expected(self, unit: diagnoser::TimeUnit) -> String {
+    pub fn expected(self, unit: vocabulary::TimeUnit) -> String {
         match self {
             CellKind::Time => format!("integers or floats in {unit}, or RFC 3339 text"),
             CellKind::Signal => "signal names (text)".to_string(),
@@ -189,7 +189,7 @@ impl<S: Records> Rows<S> {
     pub(crate) fn check_kinds(
         &self,
         columns: &[(usize, CellKind)],
-        unit: diagnoser::TimeUnit,
+        unit: vocabulary::TimeUnit,
     ) -> Result<(), Located> {
         for &(i, kind) in columns {
             if let Err(found) = self.records.holds(i, kind) {
@@ -284,10 +284,10 @@ impl TimeParser {
     }
 
     /// The unit of numeric timestamps (for messages about a column's type).
-    pub(crate) fn unit(&self) -> diagnoser::TimeUnit {
+    pub(crate) fn unit(&self) -> vocabulary::TimeUnit {
         match (self.choice, self.format) {
             (TimeFormatChoice::Detect(unit), _) | (_, TimeFormat::Numeric(unit)) => unit,
-            (TimeFormatChoice::Given(_), TimeFormat::Rfc3339) => diagnoser::TimeUnit::Ms,
+            (TimeFormatChoice::Given(_), TimeFormat::Rfc3339) => vocabulary::TimeUnit::Ms,
         }
     }
 

@@ -5,12 +5,10 @@
 //! non-decreasing from one batch to the next. Only real changes are events.
 //!
 //! [`open`] detects the form ([`detect_format`]) unless it is given, then reads
-//! CSV and Parquet logs of the events, intervals and scans forms with polars,
-//! batch by batch (memory does not grow with the log), and hands `candump -L`
-//! and VCD logs to [`candump`] and [`vcd`]. Every form of the same recording
-//! gives the same initial values and the same events, the ones
-//! `diagnoser::log`'s readers give. [`write_intervals_parquet`] writes the
-//! archive form as Parquet.
+//! the events, intervals and scans forms, CSV or Parquet, with the form's reader
+//! on a thread of its own, batch by batch (memory does not grow with the log),
+//! and hands `candump -L` and VCD logs to [`candump`] and [`vcd`]. Every form
+//! of the same recording gives the same initial values and the same events.
 //!
 //! Errors are one-line [`Located`] errors naming the file, line, column and
 //! field. In a Parquet file, the "line" of a row is its 1-based row number plus
@@ -20,7 +18,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
-use diagnoser::{Event, Located, Plant, Time, TimeFormat, TimeUnit};
+use vocabulary::{Event, Located, Plant, Time, TimeFormat, TimeUnit};
 
 use crate::detect::detect_format;
 use crate::{candump, threaded, vcd};
@@ -140,7 +138,7 @@ pub struct LogStream {
     pub time: TimeFormat,
     /// Time of the first record.
     pub start: Time,
-    /// Initial value of every signal, indexed by [`diagnoser::SignalId::index`].
+    /// Initial value of every signal, indexed by [`vocabulary::SignalId::index`].
     pub initial: Vec<bool>,
     /// The changes, batch by batch.
     pub batches: Batches,

@@ -10,7 +10,7 @@ use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
-use diagnoser::{Event, Located, Plant, SignalTable, Time, TimeFormat};
+use vocabulary::{Event, Located, Plant, SignalTable, Time, TimeFormat};
 
 use crate::csv::CsvRecords;
 use crate::rows::{Records, file_error, open_file};

@@ -50,7 +50,7 @@ use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
-use diagnoser::{Event, Located, Location, Plant, SignalId, Time, TimeFormat, TimeUnit};
+use vocabulary::{Event, Located, Location, Plant, SignalId, Time, TimeFormat, TimeUnit};
 
 use super::candump::{ScanBatcher, plural, quote_list};
 use super::{IngestOptions, LogFormat, LogStream};

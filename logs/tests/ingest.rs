@@ -8,13 +8,13 @@ use std::path::{Path, PathBuf};
 
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant as sorting_plant};
-use diagnoser::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
 use logs::{
     EventLog, EventWriter, IntervalWriter, ScanWriter, read_events, read_intervals_as_events,
     read_scans_as_events,
 };
 use logs::{IngestOptions, LogFormat, detect_format, open, write_intervals_parquet};
 use polars::prelude::{Column, DataFrame, ParquetWriter};
+use vocabulary::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
 
 /// A small batch size, so that every form is read in many batches.
 const BATCH: usize = 200;

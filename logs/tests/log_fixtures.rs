@@ -14,11 +14,11 @@ use std::fs::{self, File};
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
-use diagnoser::{Event, Located, MS, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
 use logs::{
     EventLog, TimeFormatChoice, read_events, read_events_from, read_intervals_as_events,
     read_intervals_as_events_from, read_scans_as_events, read_scans_as_events_from,
 };
+use vocabulary::{Event, Located, MS, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
 
 const FORMS: [&str; 3] = ["events", "intervals", "scans"];
 
@@ -226,7 +226,7 @@ fn path_based_readers_read_the_good_files() {
 fn bom_crlf_quotes_optional_columns_and_rfc3339_are_accepted() {
     let log = read("events", "good_rfc3339_bom_crlf.csv").expect("good file");
     assert_eq!(log.format, TimeFormat::Rfc3339);
-    let start = diagnoser::time::parse_rfc3339("2026-11-21T05:00:00Z").expect("valid time");
+    let start = vocabulary::time::parse_rfc3339("2026-11-21T05:00:00Z").expect("valid time");
     assert_eq!(log.start, start);
     assert_eq!(log.initial, vec![true, false, false]);
     assert_eq!(log.events.len(), 1);

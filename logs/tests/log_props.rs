@@ -3,14 +3,14 @@
 
 use std::path::Path;
 
-use diagnoser::{
-    Event, Located, Signal, SignalId, SignalKind, SignalTable, Time, TimeFormat, TimeUnit,
-};
 use logs::{
     EventLog, EventWriter, IntervalWriter, ScanWriter, TimeFormatChoice, read_events_from,
     read_intervals_as_events_from, read_scans_as_events_from,
 };
 use proptest::prelude::*;
+use vocabulary::{
+    Event, Located, Signal, SignalId, SignalKind, SignalTable, Time, TimeFormat, TimeUnit,
+};
 
 fn table(names: &[String], actuator: &[bool]) -> SignalTable {
     let mut table = SignalTable::new();

@@ -3,11 +3,11 @@
 use std::io::Write as _;
 use std::path::Path;
 
-use diagnoser::{Event, MS, SECOND, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
 use logs::{
     EventReader, EventWriter, Interval, IntervalReader, IntervalWriter, ScanReader, ScanWriter,
     TimeFormatChoice, read_events, read_intervals_as_events, read_scans_as_events,
 };
+use vocabulary::{Event, MS, SECOND, Signal, SignalKind, SignalTable, TimeFormat, TimeUnit};
 
 fn turntable() -> SignalTable {
     let mut table = SignalTable::new();
@@ -107,7 +107,7 @@ fn scan_writer_writes_every_signal_in_table_order() {
 fn writers_use_rfc3339_when_asked() {
     let signals = turntable();
     let mut writer = EventWriter::new(Vec::new(), &signals, TimeFormat::Rfc3339).expect("writer");
-    let t = diagnoser::time::parse_rfc3339("2026-11-21T05:00:00Z").expect("time");
+    let t = vocabulary::time::parse_rfc3339("2026-11-21T05:00:00Z").expect("time");
     writer
         .write(&Event {
             t: t + 10 * MS,
@@ -124,7 +124,7 @@ fn writers_reject_misuse_without_panicking() {
     let signals = turntable();
     let stranger = Event {
         t: 0,
-        signal: diagnoser::SignalId(7),
+        signal: vocabulary::SignalId(7),
         value: true,
     };
 

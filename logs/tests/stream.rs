@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
-use diagnoser::{Event, MS, SECOND, TimeFormat, TimeUnit};
 use logs::{IngestOptions, ScanWriter, open, read_events, read_scans_as_events};
+use vocabulary::{Event, MS, SECOND, TimeFormat, TimeUnit};
 
 fn read_all(path: &Path) -> (Vec<bool>, i64, Vec<Event>) {
     let options = IngestOptions {

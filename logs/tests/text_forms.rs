@@ -5,8 +5,8 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use diagnoser::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
 use logs::{IngestOptions, LogFormat, LogStream, candump, vcd};
+use vocabulary::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
 
 /// The turntable's signals, mapped into two PDOs: the sensors in TPDO1 of node
 /// 1 (bits 0 and 1 of byte 0), the order in RPDO1 (bit 0 of byte 1).

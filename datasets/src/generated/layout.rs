@@ -23,9 +23,9 @@
 //! hands over to a next machine that accepts a workpiece after a random delay.
 //! Everything is drawn from one seed, so a seed names a plant.
 
-use diagnoser::{MS, SECOND, Time};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use vocabulary::{MS, SECOND, Time};
 
 /// How large a generated plant is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]

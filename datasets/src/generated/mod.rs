@@ -16,7 +16,7 @@
 //! ```
 //! use datasets::generated::{GeneratedPlant, Size};
 //! use datasets::sim::SimConfig;
-//! use diagnoser::SECOND;
+//! use vocabulary::SECOND;
 //!
 //! let plant = GeneratedPlant::generate(17, Size::Small).expect("a valid plant");
 //! let config = SimConfig {
@@ -42,7 +42,7 @@ pub mod program;
 use std::path::Path;
 use std::sync::Arc;
 
-use diagnoser::Plant;
+use vocabulary::Plant;
 
 pub use layout::{Layout, Size};
 pub use physics::GeneratedPhysics;

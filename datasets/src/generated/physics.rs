@@ -23,9 +23,9 @@
 
 use std::sync::Arc;
 
-use diagnoser::{FaultTemplate, Plant, Time};
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use vocabulary::{FaultTemplate, Plant, Time};
 
 use super::layout::{DRIFT, Hazard, Layout, Middle, PlaceKind, Stage};
 use crate::sim::{Damage, Physics};

@@ -73,7 +73,7 @@ fn header(layout: &Layout, out: &mut String) {
             layout.stations.len(),
             layout.parts.len(),
             layout.signals.len(),
-            layout.scan_period / diagnoser::MS,
+            layout.scan_period / vocabulary::MS,
             layout.seed,
             layout.size.name(),
         ),
@@ -83,7 +83,7 @@ fn header(layout: &Layout, out: &mut String) {
         out.push_str("#\n");
         comment(&station_words(layout, station), out);
     }
-    let ms = layout.scan_period as f64 / diagnoser::MS as f64;
+    let ms = layout.scan_period as f64 / vocabulary::MS as f64;
     let _ = write!(
         out,
         "name = {}\nscan_period_ms = {ms}\ntime_unit = \"ms\"\n",

@@ -17,7 +17,7 @@
 //! Orders are stored actions: set when a transition fires and kept until
 //! another transition changes them.
 
-use diagnoser::{SECOND, Time};
+use vocabulary::{SECOND, Time};
 
 use super::layout::{DRIFT, Hazard, Layout, MAX_JITTER, PlaceKind, Stage};
 use crate::sim::Controller;

@@ -5,8 +5,8 @@ use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
 use crate::EventLog;
-use diagnoser::{SignalTable, Time, TimeFormat, TimeUnit};
 use polars::prelude::{Column, DataFrame, DataType, Field, ParquetWriter, PolarsError, Schema};
+use vocabulary::{SignalTable, Time, TimeFormat, TimeUnit};
 
 /// Rows per Parquet row group: memory holds one group's columns at a time.
 const ROWS_PER_GROUP: usize = 1 << 16;

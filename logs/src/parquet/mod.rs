@@ -30,12 +30,12 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, sync_channel};
 use std::thread::JoinHandle;
 
-use diagnoser::Located;
 use polars::prelude::{
     BooleanChunked, DataFrame, DataType, Engine, Float64Chunked, IdxSize, Int64Chunked, LazyFrame,
     ParquetReader, PlRefPath, PlanCallback, PolarsError, PolarsResult, ScanArgsParquet, SchemaRef,
     SerReader, StringChunked,
 };
+use vocabulary::Located;
 
 use crate::IngestOptions;
 use crate::rows::{CellKind, Records, file_error, open_file};

@@ -9,7 +9,7 @@
 //! place that spells those names.
 //!
 //! ```
-//! use diagnoser::{Flag, FlagKind};
+//! use vocabulary::{Flag, FlagKind};
 //!
 //! let flag = Flag::def("C4");
 //! assert_eq!(flag.to_string(), "def_C4");
