@@ -7,7 +7,7 @@
 
 use std::collections::HashMap;
 
-use vocabulary::model::{Model, PartModel};
+use vocabulary::model::{Model, ModelClock, PartModel};
 use vocabulary::{Located, Location, Plant, Time};
 
 use crate::replay::{Change, PartRoutes};
@@ -39,12 +39,13 @@ struct PartCheck<'m> {
 
 impl<'m> PartCheck<'m> {
     fn clock_origin(&self, clock: &str) -> Option<Time> {
-        if clock == "command" {
-            return self.origin;
+        match ModelClock::parse(clock)? {
+            ModelClock::Command => self.origin,
+            ModelClock::Edge { signal, rising } => {
+                let bit = self.model.signals.iter().position(|s| *s == signal)?;
+                self.last_edge[2 * bit + usize::from(rising)]
+            }
         }
-        let (edge, name) = clock.strip_suffix(')')?.split_once('(')?;
-        let bit = self.model.signals.iter().position(|s| s == name)?;
-        self.last_edge[2 * bit + usize::from(edge == "RE")]
     }
 
     /// The time by which the current state must have been left, if any.
@@ -173,11 +174,7 @@ fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
                     e.event,
                     g.lo,
                     g.hi,
-                    if e.clock == "command" {
-                        "the last command".to_string()
-                    } else {
-                        e.clock.clone()
-                    }
+                    ModelClock::parse(&e.clock).map_or(e.clock.clone(), |c| c.since())
                 )
             })
             .collect();
@@ -236,11 +233,8 @@ fn step(
                             message: format!(
                                 "{} at {clock} after {}, outside its guard [{}, {}]",
                                 tr.event,
-                                if tr.clock == "command" {
-                                    "the last command"
-                                } else {
-                                    &tr.clock
-                                },
+                                ModelClock::parse(&tr.clock)
+                                    .map_or(tr.clock.clone(), |c| c.since()),
                                 tr.guard.lo,
                                 tr.guard.hi
                             ),

@@ -2,7 +2,7 @@
 
 use std::fmt::Write;
 
-use vocabulary::model::{Model, PartModel};
+use vocabulary::model::{Model, ModelClock, PartModel};
 
 /// The DOT text of one part's model: states as nodes (stable states, where the
 /// part waits for a command, drawn double), transitions as edges labelled with
@@ -42,7 +42,7 @@ pub fn part_to_dot(model: &Model, part: &PartModel) -> String {
         let guard = if t.command {
             String::new()
         } else if t.timed {
-            let clock = if t.clock == "command" {
+            let clock = if ModelClock::parse(&t.clock) == Some(ModelClock::Command) {
                 String::new()
             } else {
                 format!(" after {}", t.clock)

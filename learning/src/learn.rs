@@ -9,9 +9,9 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
 use vocabulary::model::{
-    ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, PartModel,
-    Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule, StateModel,
-    TransitionModel,
+    ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, ModelClock,
+    PartModel, Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule, StateModel,
+    TransitionModel, edge_name,
 };
 use vocabulary::{Located, Plant, SignalKind, Time};
 
@@ -653,16 +653,18 @@ impl PartLearner {
         let mut parts = Vec::new();
         for (bit, name) in self.names.iter().enumerate() {
             if changed >> bit & 1 == 1 {
-                let edge = if to_vec >> bit & 1 == 1 { "RE" } else { "FE" };
-                parts.push(format!("{edge}({name})"));
+                parts.push(edge_name(name, to_vec >> bit & 1 == 1));
             }
         }
         parts.join(" ")
     }
 
     fn ref_name(&self, r: usize) -> String {
-        let edge = if r % 2 == 1 { "RE" } else { "FE" };
-        format!("{edge}({})", self.names[r / 2])
+        let clock = ModelClock::Edge {
+            signal: self.names[r / 2].clone(),
+            rising: r % 2 == 1,
+        };
+        clock.to_string()
     }
 
     fn model(
@@ -743,7 +745,7 @@ impl PartLearner {
             });
         let (clock, hist) = match best_ref {
             Some((r, h)) if use_ref => (self.ref_name(r), h),
-            _ => ("command".to_string(), &acc.command),
+            _ => (ModelClock::Command.to_string(), &acc.command),
         };
         if hist.n == 0 {
             untimed.push(format!(
@@ -770,7 +772,7 @@ impl PartLearner {
                 guard.q01, guard.q99
             ));
         }
-        let command_guard = if clock != "command" && acc.command.n > 0 {
+        let command_guard = if clock != ModelClock::Command.to_string() && acc.command.n > 0 {
             Some(acc.command.guard(options, widening, scale))
         } else {
             None

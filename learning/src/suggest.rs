@@ -273,7 +273,7 @@ pub fn to_toml(suggestion: &Suggestion, signals: &SignalTable) -> String {
             .join(", ")
     };
     let ms = approx_ms;
-    let edge = |rising: bool, name: &str| format!("{}({name})", if rising { "RE" } else { "FE" });
+    let edge = |rising: bool, name: &str| vocabulary::model::edge_name(name, rising);
     for part in parts {
         // `writeln!` into a String cannot fail.
         let _ = writeln!(out, "\n[[parts]]");

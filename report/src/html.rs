@@ -9,7 +9,7 @@ use std::path::Path;
 
 use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
-use diagnoser::model::{Model, PartModel};
+use diagnoser::model::{Model, ModelClock, PartModel};
 use diagnoser::plant::{Constraint, Part};
 use diagnoser::{Plant, SignalKind, Time, TimeFormat};
 use filter_coupling::filter::Coupling;
@@ -516,7 +516,8 @@ fn windows(model: &Model, pm: &PartModel, tick: Time) -> Value {
             .map(|&v| if v { '1' } else { '0' })
             .collect();
         let mut list = Vec::new();
-        for e in s.expected.iter().filter(|e| e.clock == "command") {
+        let command = ModelClock::Command.to_string();
+        for e in s.expected.iter().filter(|e| e.clock == command) {
             let Some(tr) = pm.transitions.get(e.transition).filter(|t| t.timed) else {
                 continue;
             };
@@ -753,11 +754,8 @@ fn detection_article(
                         tr.guard.lo,
                         tr.guard.hi,
                         p.model.time_unit.name(),
-                        if e.clock == "command" {
-                            "the last command".to_string()
-                        } else {
-                            escape(&e.clock)
-                        }
+                        ModelClock::parse(&e.clock)
+                            .map_or(escape(&e.clock), |c| escape(&c.since()))
                     ))
                 })
                 .collect();

@@ -95,7 +95,7 @@ pub fn fault_meaning(plant: &Plant, label: &str) -> String {
 
 /// `RE(A4)` or `FE(C4)` for an edge of `signal` to `value`.
 pub fn edge(name: &str, value: bool) -> String {
-    format!("{}({name})", if value { "RE" } else { "FE" })
+    diagnoser::model::edge_name(name, value)
 }
 
 /// A time as the log writes it, with its unit for numeric logs.

@@ -308,3 +308,71 @@ pub struct SensorEstimate {
     /// Of those, the ones where its edge may or may not have happened yet.
     pub uncertain: Vec<String>,
 }
+/// An edge of `signal` as the model names it, in events and clocks: `RE(C5)`
+/// when it rises, `FE(C5)` when it falls.
+pub fn edge_name(signal: &str, rising: bool) -> String {
+    format!("{}({signal})", if rising { "RE" } else { "FE" })
+}
+
+/// A clock of the model, as `model.json` names it in guards and deadlines:
+/// `command` (time since the part's last actuator edge) or an edge of one of
+/// its signals, `RE(C5)` or `FE(C1)` (time since that edge last occurred).
+///
+/// ```
+/// use vocabulary::model::ModelClock;
+///
+/// let clock = ModelClock::parse("FE(C1)").unwrap();
+/// assert_eq!(clock, ModelClock::Edge { signal: "C1".into(), rising: false });
+/// assert_eq!(clock.to_string(), "FE(C1)");
+/// assert_eq!(ModelClock::parse("command"), Some(ModelClock::Command));
+/// assert_eq!(ModelClock::Command.since(), "the last command");
+/// ```
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum ModelClock {
+    /// Time since the part's last actuator edge.
+    Command,
+    /// Time since the last rising or falling edge of `signal`.
+    Edge {
+        /// The signal's name.
+        signal: String,
+        /// `RE` (rising) or `FE` (falling).
+        rising: bool,
+    },
+}
+
+impl ModelClock {
+    /// The clock named `text`, if it is one.
+    pub fn parse(text: &str) -> Option<ModelClock> {
+        if text == "command" {
+            return Some(ModelClock::Command);
+        }
+        let (edge, signal) = text.strip_suffix(')')?.split_once('(')?;
+        let rising = match edge {
+            "RE" => true,
+            "FE" => false,
+            _ => return None,
+        };
+        Some(ModelClock::Edge {
+            signal: signal.to_string(),
+            rising,
+        })
+    }
+
+    /// What the clock counts from, for sentences: "the last command", or the
+    /// edge.
+    pub fn since(&self) -> String {
+        match self {
+            ModelClock::Command => "the last command".to_string(),
+            edge => edge.to_string(),
+        }
+    }
+}
+
+impl std::fmt::Display for ModelClock {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ModelClock::Command => f.write_str("command"),
+            ModelClock::Edge { signal, rising } => f.write_str(&edge_name(signal, *rising)),
+        }
+    }
+}

@@ -21,7 +21,7 @@
 use std::collections::HashMap;
 
 use crate::fault::FaultTemplate;
-use crate::model::{PartModel, SensorKind};
+use crate::model::{ModelClock, PartModel, SensorKind, edge_name};
 use crate::plant::{Part, Plant};
 use crate::{SignalId, Time};
 
@@ -436,24 +436,25 @@ impl PartDiagnoser {
             .iter()
             .enumerate()
             .filter(|(b, _)| changed >> b & 1 == 1)
-            .map(|(b, n)| {
-                let edge = if after >> b & 1 == 1 { "RE" } else { "FE" };
-                format!("{edge}({n})")
-            })
+            .map(|(b, n)| edge_name(n, after >> b & 1 == 1))
             .collect::<Vec<_>>()
             .join(" ")
     }
 
     /// A clock's name: `command` or an edge such as `FE(C1)`.
     pub fn clock_name(&self, clock: u8) -> String {
-        match self.clocks.get(clock as usize) {
-            Some(Clock::Edge { bit, rising }) => format!(
-                "{}({})",
-                if *rising { "RE" } else { "FE" },
-                self.names.get(*bit as usize).map_or("?", String::as_str)
-            ),
-            _ => "command".to_string(),
-        }
+        let clock = match self.clocks.get(clock as usize) {
+            Some(Clock::Edge { bit, rising }) => ModelClock::Edge {
+                signal: self
+                    .names
+                    .get(*bit as usize)
+                    .map_or("?", String::as_str)
+                    .to_string(),
+                rising: *rising,
+            },
+            _ => ModelClock::Command,
+        };
+        clock.to_string()
     }
 
     /// Whether the edges `changed`, after which the part reads `after`,
@@ -1579,24 +1580,15 @@ impl<'a> ClockTable<'a> {
         name: &str,
         bit_of: &impl Fn(&str) -> Option<u8>,
     ) -> Result<u8, BuildError> {
-        let clock = if name == "command" {
-            Clock::Command
-        } else {
-            let parsed = name
-                .strip_suffix(')')
-                .and_then(|s| s.split_once('('))
-                .and_then(|(edge, sig)| {
-                    let rising = match edge {
-                        "RE" => true,
-                        "FE" => false,
-                        _ => return None,
-                    };
-                    bit_of(sig).map(|bit| Clock::Edge { bit, rising })
-                });
-            parsed.ok_or_else(|| {
-                format!("part '{}': unknown clock '{name}' in the model", self.part)
-            })?
+        let clock = match ModelClock::parse(name) {
+            Some(ModelClock::Command) => Some(Clock::Command),
+            Some(ModelClock::Edge { signal, rising }) => {
+                bit_of(&signal).map(|bit| Clock::Edge { bit, rising })
+            }
+            None => None,
         };
+        let clock = clock
+            .ok_or_else(|| format!("part '{}': unknown clock '{name}' in the model", self.part))?;
         Ok(match self.clocks.iter().position(|&c| c == clock) {
             Some(i) => i as u8,
             None => {
@@ -1743,11 +1735,7 @@ fn fault_modes(
         };
         if let ModeKind::Glitch { bit, value } = kind {
             // The glitch's own clock: time since its observed edge.
-            let edge = format!(
-                "{}({})",
-                if value { "RE" } else { "FE" },
-                names[bit as usize]
-            );
+            let edge = edge_name(&names[bit as usize], value);
             clocks.index(&edge, bit_of)?;
         }
         let partition = plant.partition_of(&f.label).map(|p| {
