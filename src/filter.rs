@@ -292,7 +292,7 @@ fn check_cmd(args: CheckArgs) -> Result<(), Failure> {
         let mut check =
             |t: diagnoser::Time, io: &[bool], out: &mut dyn Write| -> std::io::Result<()> {
                 scans += 1;
-                let violated = filter.check(t, io);
+                let violated = filter.violations(t, io);
                 for v in &violated {
                     if !holding.contains(&v.constraint) {
                         episodes += 1;

@@ -8,7 +8,7 @@ use clap::Args;
 use diagnoser::model::{Model, SensorKind};
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
-use learning::check::check;
+use learning::conformance::deviations;
 use learning::dot::part_to_dot;
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
@@ -163,7 +163,7 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
 
     for path in &args.checks {
         let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
-        let found = check(&model, &plant, stream).map_err(Failure::bad)?;
+        let found = deviations(&model, &plant, stream).map_err(Failure::bad)?;
         for v in &found {
             println!(
                 "{}",

@@ -123,7 +123,7 @@ struct Checked {
 
 impl ScanSink for Checked {
     fn scan(&mut self, t: Time, values: &[bool]) -> std::io::Result<()> {
-        for v in self.filter.check(t, values) {
+        for v in self.filter.violations(t, values) {
             if self.violations.len() < 5 {
                 self.violations.push((t, v.constraint));
             }

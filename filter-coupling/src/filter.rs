@@ -689,17 +689,18 @@ impl Filter {
     /// Checks a recorded scan against the safety constraints: `io` holds the
     /// sensors and the orders as the PLC wrote them. Nothing is changed; the
     /// violated constraints come back with their literals.
-    pub fn check(&mut self, t: Time, io: &[bool]) -> Vec<Violation> {
+    pub fn violations(&mut self, t: Time, io: &[bool]) -> Vec<Violation> {
         self.begin(t, io);
         for &a in &self.actuators {
             self.cur[a] = io[a];
         }
-        let violated = self.violations();
+        let violated = self.violated_now();
         self.note_orders(t);
         violated
     }
 
-    fn violations(&self) -> Vec<Violation> {
+    /// The constraints the current scan's values violate.
+    fn violated_now(&self) -> Vec<Violation> {
         self.safety
             .iter()
             .filter(|c| c.op.eval(&self.cur, &self.prev))
@@ -758,7 +759,7 @@ impl Filter {
         for (k, &a) in self.actuators.iter().enumerate() {
             self.cur[a] = self.orders[k];
         }
-        outcome.violated = self.violations();
+        outcome.violated = self.violated_now();
         if !outcome.violated.is_empty() {
             outcome.fallback = true;
             for k in 0..self.laws.len() {

@@ -44,7 +44,7 @@ use diagnoser::plant::ObserverRule;
 use diagnoser::{Flag, FlagKind, MS, Plant, SignalKind, Time};
 
 use crate::filter::{Filter, Mode, PartIntervals};
-use crate::synthesis::{CombinedLaw, OutputLaw, simplify};
+use crate::synthesis::{CombinedLaw, OutputLaw, reduce};
 
 /// What to generate.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -575,7 +575,7 @@ impl<'a> Gen<'a> {
                 }
             })
         }
-        Ok(simplify(&go(self, e, ctx)?))
+        Ok(reduce(&go(self, e, ctx)?))
     }
 
     /// The plant's actuators, in signal order.
@@ -889,7 +889,7 @@ impl<'a> Gen<'a> {
                     format!("from {}", functional.join(", "))
                 }
             );
-            let safe = simplify(&Expr::Or(vec![Expr::And(vec![not(f0), g1]), f1]));
+            let safe = reduce(&Expr::Or(vec![Expr::And(vec![not(f0), g1]), f1]));
             out.push_str(&wrapped("", &format!("{id} := "), &safe, ";\n"));
         }
         Ok(())
@@ -930,7 +930,7 @@ impl<'a> Gen<'a> {
                     );
                 }
                 let holds = self.translate(&c.expr, Ctx::Orders)?;
-                let cond = simplify(&Expr::And(vec![holds, var(&other)]));
+                let cond = reduce(&Expr::And(vec![holds, var(&other)]));
                 if cond != Expr::Const(false) {
                     out.push_str(&wrapped("", "IF ", &cond, " THEN\n"));
                     let _ = writeln!(out, "    {other} := FALSE;\nEND_IF;");
@@ -974,7 +974,7 @@ impl<'a> Gen<'a> {
                 .violated
                 .push((bit, name.to_string(), original.expr.to_string()));
         }
-        let any = simplify(&Expr::Or(bits));
+        let any = reduce(&Expr::Or(bits));
         out.push_str(&wrapped("", "FALLBACK := ", &any, ";\n"));
         Ok(())
     }
@@ -1050,7 +1050,7 @@ impl<'a> Gen<'a> {
                 .iter()
                 .map(|f| self.cur(f, Ctx::Before))
                 .collect::<Result<Vec<_>, _>>()?;
-            let cond = simplify(&Expr::And(vec![not(var("FALLBACK")), Expr::Or(flag_exprs)]));
+            let cond = reduce(&Expr::And(vec![not(var("FALLBACK")), Expr::Or(flag_exprs)]));
             out.push_str(&wrapped("", &format!("{bit} := "), &cond, ";\n"));
             let _ = writeln!(out, "IF {bit} THEN");
             self.write_orders_to_f1(out, &acts, forced)?;

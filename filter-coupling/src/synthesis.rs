@@ -41,7 +41,7 @@ pub fn cofactor(e: &Expr, name: &str, value: bool) -> Expr {
     let c = |b: bool| Expr::Const(b);
     let prev = || Expr::Prev(name.to_string());
     let not = |e: Expr| Expr::Not(Box::new(e));
-    simplify(&match e {
+    reduce(&match e {
         Expr::Var(n) if n == name => c(value),
         Expr::Rise(n) if n == name => {
             if value {
@@ -77,9 +77,9 @@ pub fn substitute(e: &Expr, name: &str, by: &Expr) -> Expr {
 
 /// Constant folding, flattening, double negations and repeated terms: enough
 /// to keep the closed forms readable.
-pub fn simplify(e: &Expr) -> Expr {
+pub fn reduce(e: &Expr) -> Expr {
     match e {
-        Expr::Not(inner) => match simplify(inner) {
+        Expr::Not(inner) => match reduce(inner) {
             Expr::Const(b) => Expr::Const(!b),
             Expr::Not(x) => *x,
             x => Expr::Not(Box::new(x)),
@@ -87,7 +87,7 @@ pub fn simplify(e: &Expr) -> Expr {
         Expr::And(es) | Expr::Or(es) => {
             let and = matches!(e, Expr::And(_));
             let mut terms: Vec<Expr> = Vec::new();
-            for t in es.iter().map(simplify) {
+            for t in es.iter().map(reduce) {
                 match t {
                     // The absorbing element decides; the neutral one vanishes.
                     Expr::Const(b) if b != and => return Expr::Const(b),
@@ -124,15 +124,15 @@ fn extend_unique(terms: &mut Vec<Expr>, more: Vec<Expr>) {
 }
 
 fn or(terms: Vec<Expr>) -> Expr {
-    simplify(&Expr::Or(terms))
+    reduce(&Expr::Or(terms))
 }
 
 fn and(terms: Vec<Expr>) -> Expr {
-    simplify(&Expr::And(terms))
+    reduce(&Expr::And(terms))
 }
 
 fn not(e: Expr) -> Expr {
-    simplify(&Expr::Not(Box::new(e)))
+    reduce(&Expr::Not(Box::new(e)))
 }
 
 /// Whether `e` reads `name` under an odd number of negations.
@@ -195,7 +195,7 @@ pub fn closed_form(laws: &[OutputLaw], combined: &[CombinedLaw]) -> Vec<(String,
             for (name, form) in &forms {
                 holds = substitute(&holds, name, form);
             }
-            let holds = simplify(&holds);
+            let holds = reduce(&holds);
             if let Some((_, form)) = forms.iter_mut().find(|(n, _)| *n == c.other) {
                 *form = and(vec![form.clone(), not(holds)]);
             }

@@ -9,7 +9,7 @@
 //!
 //! It is not for: running diagnosers on-line, evaluating the filter, or simulating.
 
-pub mod check;
+pub mod conformance;
 pub mod dot;
 pub mod learn;
 mod replay;

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sim::{MemorySink, SimConfig, run};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
-use learning::check::check;
+use learning::conformance::deviations;
 use learning::learn::{LearnOptions, Learner};
 use logs::{LogFormat, LogStream};
 use vocabulary::model::{Model, PartModel};
@@ -134,12 +134,12 @@ fn a_model_accepts_another_normal_run_and_catches_f2() {
     let model = learn(&[&simulate(4 * 3600 * SECOND, 7, &[])]);
     let plant = plant();
     let other = simulate(3600 * SECOND, 8, &[]);
-    let violations = check(&model, &plant, stream(&other, "seed8")).expect("checks");
+    let violations = deviations(&model, &plant, stream(&other, "seed8")).expect("checks");
     assert_eq!(violations, vec![], "normal run rejected");
 
     let onset = 602 * SECOND;
     let f2 = simulate(900 * SECOND, 7, &["F2@602s"]);
-    let violations = check(&model, &plant, stream(&f2, "f2")).expect("checks");
+    let violations = deviations(&model, &plant, stream(&f2, "f2")).expect("checks");
     let a4 = plant.signals.id("A4").expect("A4");
     let rise = f2
         .events

@@ -11,7 +11,7 @@ use diagnoser::expr::Expr;
 use diagnoser::model::Model;
 use diagnoser::{Event, Flag, FlagKind, Plant, Time, TimeFormat};
 use filter_coupling::filter::{Coupling, Filter};
-use filter_coupling::synthesis::{cofactor, simplify};
+use filter_coupling::synthesis::{cofactor, reduce};
 use logs::LogStream;
 
 /// Scans of history kept for "the last changes" of an explanation.
@@ -207,7 +207,7 @@ pub fn replay(
     };
     diagnoser.start(stream.start, &r.out.initial);
     let initial = r.out.initial.clone();
-    r.check(stream.start, &initial, &initial);
+    r.note_violations(stream.start, &initial, &initial);
     let mut verdicts: Vec<Verdict> = Vec::new();
     let mut last = stream.start;
     for batch in stream.batches {
@@ -333,7 +333,7 @@ impl Replayer<'_> {
             self.verdict(v, &before, true);
         }
         let now = std::mem::take(&mut self.io);
-        self.check(t, &before, &now);
+        self.note_violations(t, &before, &now);
         self.io = now;
         // Parts whose signals changed entered a new state.
         for p in touched {
@@ -447,7 +447,7 @@ impl Replayer<'_> {
                 e = cofactor(&e, name, up);
             }
         }
-        simplify(&e)
+        reduce(&e)
     }
 
     /// A true literal as the flags raised make it read, and the sensor whose
@@ -478,13 +478,14 @@ impl Replayer<'_> {
         let io = self.io.clone();
         while self.last_checked + period < t {
             let at = self.last_checked + period;
-            self.check(at, &io, &io);
+            self.note_violations(at, &io, &io);
         }
     }
 
-    fn check(&mut self, t: Time, before: &[bool], now: &[bool]) {
+    /// Records the constraints the scan at `t` violates, as trips.
+    fn note_violations(&mut self, t: Time, before: &[bool], now: &[bool]) {
         self.last_checked = self.last_checked.max(t);
-        let violated = self.filter.check(t, now);
+        let violated = self.filter.violations(t, now);
         if violated.is_empty() && self.holding.is_empty() {
             return;
         }

@@ -15,7 +15,7 @@ use logs::LogStream;
 
 /// A deviation from the model.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Violation {
+pub struct Deviation {
     /// When it was detected (for a missed deadline: the deadline itself).
     pub t: Time,
     /// The part.
@@ -76,7 +76,7 @@ impl<'m> PartCheck<'m> {
 }
 
 /// Replays `log` against `model` and returns every violation, in time order per part.
-pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violation>, Located> {
+pub fn deviations(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Deviation>, Located> {
     let scale = model.time_unit.nanos() as f64;
     let mut parts: Vec<PartCheck> = Vec::new();
     let mut routes = PartRoutes::new(plant.signals.len());
@@ -154,7 +154,7 @@ pub fn check(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Violati
 }
 
 /// Reports a missed deadline of the current state if `now` is past it.
-fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
+fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Deviation>) {
     if pc.reported {
         return;
     }
@@ -178,7 +178,7 @@ fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Violation>) {
                 )
             })
             .collect();
-        out.push(Violation {
+        out.push(Deviation {
             // A state entered after its deadline (clocks that other edges reset)
             // is late from the moment it is entered.
             t: deadline.max(pc.entered),
@@ -197,7 +197,7 @@ fn step(
     t: Time,
     changes: &[Change],
     scale: f64,
-    out: &mut Vec<Violation>,
+    out: &mut Vec<Deviation>,
 ) {
     for pc in parts.iter_mut() {
         missed(pc, t, scale, out);
@@ -214,7 +214,7 @@ fn step(
             // Independent edges that happened to fall in one scan: accepted when
             // they split into a sequence of known transitions.
             None if decomposes(&pc.trans, from, changed) => {}
-            None => out.push(Violation {
+            None => out.push(Deviation {
                 t,
                 part: pc.model.name.clone(),
                 message: format!(
@@ -227,7 +227,7 @@ fn step(
                 if let Some(o) = pc.clock_origin(&tr.clock) {
                     let clock = (t - o) as f64 / scale;
                     if !tr.guard.admits(clock) {
-                        out.push(Violation {
+                        out.push(Deviation {
                             t,
                             part: pc.model.name.clone(),
                             message: format!(
