@@ -127,7 +127,7 @@ fn rewrite_cmd(args: RewriteArgs) -> Result<(), Failure> {
                     .any(|f| *f == Flag::def(&partition).to_string());
             if wanted {
                 estimates.push(
-                    Estimate::from_model(&e.sensor, &partition, &e.expr, &e.uncertain)
+                    Estimate::from_model(&e.sensor, &partition, &e.intervals(), &e.uncertain)
                         .map_err(|m| Failure::bad(format!("{}: {m}", args.model.display())))?,
                 );
             }

@@ -329,17 +329,13 @@ fn estimates_and_clocks(
         clocks.push((p.name.clone(), ordered));
         for s in &p.sensor_estimates {
             let partition = sensor_partition(plant, &s.sensor);
-            let expr: Vec<String> = s
-                .expr
-                .split('|')
-                .map(|n| qualify(&p.name, n.trim()))
+            let intervals: Vec<String> = (s.intervals().into_iter())
+                .map(|n| qualify(&p.name, n))
                 .collect();
+            let intervals: Vec<&str> = intervals.iter().map(String::as_str).collect();
             let uncertain: Vec<String> = s.uncertain.iter().map(|n| qualify(&p.name, n)).collect();
             estimates.push(Estimate::from_model(
-                &s.sensor,
-                &partition,
-                &expr.join(" | "),
-                &uncertain,
+                &s.sensor, &partition, &intervals, &uncertain,
             )?);
         }
     }

@@ -40,19 +40,16 @@ pub struct Estimate {
 }
 
 impl Estimate {
-    /// From a learned estimate: `expr` is `I1 | I2 | …` (every interval where
-    /// the sensor is or may be 1), `uncertain` the uncertain ones among them.
+    /// From a learned estimate: `intervals` are every interval where the
+    /// sensor is or may be 1 (`SensorEstimate::intervals`), `uncertain` the
+    /// uncertain ones among them.
     pub fn from_model(
         sensor: &str,
         partition: &str,
-        expr: &str,
+        intervals: &[&str],
         uncertain: &[String],
     ) -> Result<Estimate, String> {
-        let all: Vec<String> = expr
-            .split('|')
-            .map(|s| s.trim().to_string())
-            .filter(|s| !s.is_empty())
-            .collect();
+        let all: Vec<String> = intervals.iter().map(|s| s.to_string()).collect();
         if let Some(bad) = all
             .iter()
             .find(|s| !s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_'))
@@ -185,12 +182,17 @@ mod tests {
             Estimate::from_model(
                 "C4",
                 "C4",
-                "I1 | I2 | I9 | I10",
+                &["I1", "I2", "I9", "I10"],
                 &["I2".into(), "I9".into()],
             )
             .expect("estimate"),
-            Estimate::from_model("C5", "C5", "I4 | I5 | I6 | I7", &["I4".into(), "I7".into()])
-                .expect("estimate"),
+            Estimate::from_model(
+                "C5",
+                "C5",
+                &["I4", "I5", "I6", "I7"],
+                &["I4".into(), "I7".into()],
+            )
+            .expect("estimate"),
         ]
     }
 

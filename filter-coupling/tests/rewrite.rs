@@ -131,8 +131,13 @@ proptest! {
 /// may still be at C5's position.
 #[test]
 fn a_plain_substitution_would_allow_what_the_healthy_sensor_forbids() {
-    let est = Estimate::from_model("C5", "C5", "I4 | I5 | I6 | I7", &["I4".into(), "I7".into()])
-        .expect("estimate");
+    let est = Estimate::from_model(
+        "C5",
+        "C5",
+        &["I4", "I5", "I6", "I7"],
+        &["I4".into(), "I7".into()],
+    )
+    .expect("estimate");
     let cs5 = Expr::parse("!C5 & A3").expect("parses");
     let plain = Expr::parse("!(!def_C5 & C5 | def_C5 & (I4 | I5 | I6 | I7)) & A3").expect("parses");
     let ours = rewrite(&cs5, &[est], RewriteOptions::default());

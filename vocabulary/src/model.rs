@@ -308,6 +308,29 @@ pub struct SensorEstimate {
     /// Of those, the ones where its edge may or may not have happened yet.
     pub uncertain: Vec<String>,
 }
+
+impl SensorEstimate {
+    /// The intervals where the sensor is or may be 1, in order: `expr` read
+    /// as the list it is.
+    ///
+    /// ```
+    /// use vocabulary::model::SensorEstimate;
+    ///
+    /// let c4 = SensorEstimate {
+    ///     sensor: "C4".into(),
+    ///     expr: "I1 | I2 | I9 | I10".into(),
+    ///     uncertain: vec!["I2".into(), "I9".into()],
+    /// };
+    /// assert_eq!(c4.intervals(), ["I1", "I2", "I9", "I10"]);
+    /// ```
+    pub fn intervals(&self) -> Vec<&str> {
+        (self.expr.split('|'))
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .collect()
+    }
+}
+
 /// An edge of `signal` as the model names it, in events and clocks: `RE(C5)`
 /// when it rises, `FE(C5)` when it falls.
 pub fn edge_name(signal: &str, rising: bool) -> String {
