@@ -155,7 +155,10 @@ pub fn page(p: &Page<'_>) -> String {
     // The timelines are drawn before the browser reads the (large, folded)
     // model pictures, so that the page is usable as soon as possible.
     let data = json!({ "plant": p.plant.name, "logs": data_logs });
-    let text = data.to_string().replace("</", "<\\/");
+    // Inside a script element, `</script>` would end it and `<!--` would make
+    // the browser look for its end elsewhere: JSON may write every `<` as
+    // `\u003c` (it only occurs inside strings), and then neither can occur.
+    let text = data.to_string().replace('<', "\\u003c");
     let _ = writeln!(
         h,
         "<script type=\"application/json\" id=\"gardefou-data\">{text}</script>\n<script>\n{JS}\n</script>"
@@ -1123,7 +1126,7 @@ mod tests {
     const PLANT: &str = "<script>alert('plant')</script>";
     const PART: &str = "turn<script>alert('part')</script>table";
     const DESCRIPTION: &str = "<script>alert('C5')</script> at unloading position";
-    const REASON: &str = "<script>alert('reason')</script>";
+    const REASON: &str = "<!--<script>alert('reason')</script>";
     const PATH: &str = "<script>alert('path')</script>/plant.toml";
 
     /// The sorting line with markup in its name, its turntable's name and
@@ -1185,6 +1188,9 @@ mod tests {
         // The timeline data ends where the page ends it, whole: no text in it
         // closes the element.
         let (data, rest) = rest.split_once("</script>").expect("the data's end");
+        // No `<` at all: neither `</script>` nor `<!--` (which would make a
+        // browser look past the element's end) can occur in the data.
+        assert!(!data.contains('<'), "markup in the timeline data");
         let data: Value = serde_json::from_str(data).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(data["plant"], PLANT);
         let part = data["logs"][0]["parts"]
