@@ -19,7 +19,7 @@
 #      plus an NMT heartbeat (0x701), a remote frame and a CAN FD frame if the
 #      interface takes them, which the reader must skip or accept;
 #   4. stops candump and prints the log.
-# The log reads with this plant fragment (see learning/tests/text_forms.rs):
+# The log reads with this plant fragment (see logs/tests/it/text_forms.rs):
 #   [can]
 #   C4 = { cob_id = 0x181, bit = 0 }
 #   C5 = { cob_id = 0x181, bit = 1 }

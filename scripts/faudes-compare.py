@@ -6,7 +6,7 @@ event-diagnosability (`IsEventDiagnosable`). This script runs it on the models
 listed in diagnoser/tests/fixtures/faudes/models.txt and
 
   --write        records its verdicts in diagnoser/tests/fixtures/faudes/expected.txt
-                 (which `cargo test -p diagnoser --test faudes` checks ours against);
+                 (which `cargo test -p diagnoser --test it faudes` checks ours against);
   (default)      compares its verdicts with that file and with ours, obtained from
                  `cargo run -q -p diagnoser --example faudes_check`;
   --random N     also compares both on N random small generators (--seed S to

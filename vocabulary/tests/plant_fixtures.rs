@@ -7,9 +7,9 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use diagnoser::fault::FaultTemplate;
-use diagnoser::plant::ObserverRule;
-use diagnoser::{Plant, SignalKind, TimeUnit};
+use vocabulary::fault::FaultTemplate;
+use vocabulary::plant::ObserverRule;
+use vocabulary::{Plant, SignalKind, TimeUnit};
 
 fn fixtures() -> Vec<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants");
@@ -23,7 +23,7 @@ fn fixtures() -> Vec<PathBuf> {
     files
 }
 
-fn parse(path: &Path) -> Result<Plant, diagnoser::Located> {
+fn parse(path: &Path) -> Result<Plant, vocabulary::Located> {
     let text = fs::read_to_string(path).expect("fixture reads");
     let name = path.file_name().expect("file name");
     Plant::parse(&text, &Path::new("tests/fixtures/plants").join(name))
@@ -62,7 +62,7 @@ fn the_spec_form_is_accepted_as_written() {
     )
     .expect("SPEC §3 form parses");
     assert_eq!(plant.name, "sorting");
-    assert_eq!(plant.scan_period, 10 * diagnoser::MS);
+    assert_eq!(plant.scan_period, 10 * vocabulary::MS);
     assert_eq!(plant.time_unit, TimeUnit::Ms);
     let turntable = plant.part("turntable").expect("part");
     assert_eq!(turntable.element.as_deref(), Some("P"));
@@ -126,7 +126,7 @@ fn without_faults_every_template_is_generated() {
 
 #[test]
 fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
-    use diagnoser::plant::{ModbusMap, ModbusTable};
+    use vocabulary::plant::{ModbusMap, ModbusTable};
     let plant = parse(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_modbus.toml"),
     )
@@ -155,7 +155,7 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
         };
         assert_eq!(*coil, want, "{name}");
     }
-    assert_eq!(map.flag(&diagnoser::Flag::suspect("C4")), Some(200));
+    assert_eq!(map.flag(&vocabulary::Flag::suspect("C4")), Some(200));
 }
 
 #[test]
@@ -164,7 +164,7 @@ fn an_element_blocks_only_the_sensors_it_drives() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_drives_inputs.toml");
     let plant = parse(&path).expect("parses");
     let part = &plant.parts[0];
-    let names = |ids: &[diagnoser::SignalId]| -> Vec<String> {
+    let names = |ids: &[vocabulary::SignalId]| -> Vec<String> {
         ids.iter()
             .map(|&s| plant.signals.name(s).to_string())
             .collect()

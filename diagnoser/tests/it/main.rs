@@ -1,0 +1,4 @@
+//! The integration tests of `diagnoser`, in one test binary: one module per concern.
+
+mod diagnosis;
+mod faudes;

@@ -1,0 +1,8 @@
+//! The integration tests of `logs`, in one test binary: one module per concern.
+
+mod ingest;
+mod log_fixtures;
+mod log_props;
+mod log_streams;
+mod stream;
+mod text_forms;
