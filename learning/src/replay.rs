@@ -1,5 +1,5 @@
 //! Walking a log scan by scan, as the parts see it: the shared walk of the
-//! learner and of the checker.
+//! learner and of the conformance check.
 
 use vocabulary::{Event, Located, SignalId, Time};
 
