@@ -3,28 +3,10 @@
 //! learned from the shipped normal run of the sorting line.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
+use crate::support::{gardefou, plant};
 use serde_json::Value;
-
-fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
-
-fn data(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("datasets/data")
-        .join(rel)
-        .display()
-        .to_string()
-}
-
-fn plant() -> String {
-    data("sorting/normal/plant.toml")
-}
 
 /// The model learned from the shipped normal run (`gardefou learn` on
 /// `sorting/normal/events.csv` gives this file byte for byte).

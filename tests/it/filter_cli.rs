@@ -1,22 +1,8 @@
 //! `gardefou filter rewrite` on the sorting line, with the model learned from the
 //! shipped normal run (`diagnoser/tests/fixtures/diagnosis/sorting-model.json`).
 
-use std::path::Path;
-use std::process::{Command, Output};
-
-fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
-
-fn path(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(rel)
-        .display()
-        .to_string()
-}
+use crate::support::{gardefou, repo as path};
+use std::process::Output;
 
 fn rewrite(extra: &[&str]) -> Output {
     let plant = path("datasets/plants/sorting.toml");

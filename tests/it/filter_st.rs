@@ -27,6 +27,7 @@ use filter_coupling::st::{StOptions, generate};
 use learning::learn::{LearnOptions, Learner};
 use logs::{IngestOptions, open};
 
+use crate::support::{gardefou, repo as path};
 use st::Fb;
 
 const MINUTE: Time = 60 * SECOND;
@@ -718,20 +719,6 @@ fn cylinders_plant_under_random_inputs_matches_scan_by_scan() {
         Plant::from_path(Path::new(&path("datasets/plants/cylinders.toml"))).expect("plant");
     let stats = random_runs("cylinders", &plant, None, &[Coupling::None], 20_000);
     assert!(stats.fallbacks > 1000, "{stats:?}");
-}
-
-fn gardefou(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
-
-fn path(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(rel)
-        .display()
-        .to_string()
 }
 
 #[test]

@@ -5,22 +5,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use crate::support::{data, gardefou};
 use diagnoser::model::Model;
-
-fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
-
-fn data(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("datasets/data")
-        .join(rel)
-        .display()
-        .to_string()
-}
 
 fn learn(out: &Path, logs: &[String], extra: &[&str]) -> (Output, PathBuf) {
     let model = out.join("model.json");

@@ -8,13 +8,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use crate::support;
-
-fn path(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(rel)
-        .display()
-        .to_string()
-}
+use crate::support::repo as path;
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
 

@@ -16,14 +16,8 @@ use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
 use crate::support;
+use crate::support::repo as path;
 use support::netfault::{Faults, Proxy};
-
-fn path(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join(rel)
-        .display()
-        .to_string()
-}
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
 const PLANT: &str = "datasets/data/sorting/F2/plant.toml";

@@ -11,50 +11,13 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-use std::sync::OnceLock;
+use std::process::Command;
 
+use crate::support::{data, gardefou, learned_model as model, plant};
 use serde_json::Value;
-
-fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn data(rel: &str) -> String {
-    root().join("datasets/data").join(rel).display().to_string()
-}
-
-fn plant() -> String {
-    data("sorting/normal/plant.toml")
-}
-
-/// The model learned from the shipped normal run, once for all tests.
-fn model() -> &'static str {
-    static MODEL: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
-    &MODEL
-        .get_or_init(|| {
-            let dir = tempfile::tempdir().expect("temp dir");
-            let path = dir.path().join("model.json").display().to_string();
-            let o = gardefou(&[
-                "learn",
-                "--plant",
-                &plant(),
-                "-q",
-                "-o",
-                &path,
-                &data("sorting/normal/events.csv"),
-            ]);
-            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-            (dir, path)
-        })
-        .1
 }
 
 /// A fresh directory under Cargo's per-target temp dir: the report and the

@@ -2,51 +2,10 @@
 //! about the shipped F2 run, and bad input. The page in a real browser is
 //! `tests/it/report_browser.rs`.
 
+use crate::support::{data, gardefou, learned_model as model, plant};
 use std::fs;
-use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 use std::sync::OnceLock;
-
-fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
-
-fn data(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("datasets/data")
-        .join(rel)
-        .display()
-        .to_string()
-}
-
-fn plant() -> String {
-    data("sorting/normal/plant.toml")
-}
-
-/// The model learned from the shipped normal run, once for all tests.
-fn model() -> &'static str {
-    static MODEL: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
-    &MODEL
-        .get_or_init(|| {
-            let dir = tempfile::tempdir().expect("temp dir");
-            let path = dir.path().join("model.json").display().to_string();
-            let o = gardefou(&[
-                "learn",
-                "--plant",
-                &plant(),
-                "-q",
-                "-o",
-                &path,
-                &data("sorting/normal/events.csv"),
-            ]);
-            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-            (dir, path)
-        })
-        .1
-}
 
 /// The report of the F2 run, with the built-in layout (Graphviz has its own test).
 fn f2_report() -> &'static str {

@@ -2,17 +2,11 @@
 
 use std::fs;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
+use crate::support::gardefou;
 use diagnoser::{Plant, SECOND, TimeUnit};
 use logs::{read_events, read_intervals_as_events};
-
-fn gardefou(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gardefou"))
-        .args(args)
-        .output()
-        .expect("runs the binary")
-}
 
 fn simulate(out: &Path, extra: &[&str]) -> Output {
     let mut args = vec!["simulate", "--out", out.to_str().expect("utf-8 path")];

@@ -1,12 +1,66 @@
-//! Support code shared by the integration tests: a proxy that puts network
-//! faults between a Modbus TCP client and server (`netfault`), and a feeder
-//! that writes lines to a child's stdin at a chosen pace (`feeder`).
+//! Support code shared by the integration tests: the binary and the shipped
+//! data, a proxy that puts network faults between a Modbus TCP client and
+//! server (`netfault`), and a feeder that writes lines to a child's stdin at a
+//! chosen pace (`feeder`).
 
-// Each tests/*.rs is its own crate and uses only part of this module.
+// Each test module uses only part of this module.
 #![allow(dead_code)]
+
+use std::path::Path;
+use std::process::{Command, Output};
+use std::sync::OnceLock;
 
 pub mod feeder;
 pub mod netfault;
+
+/// Runs the `gardefou` binary with `args`.
+pub fn gardefou(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(args)
+        .output()
+        .expect("runs the binary")
+}
+
+/// A file of the repository, as text.
+pub fn repo(rel: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(rel)
+        .display()
+        .to_string()
+}
+
+/// A file of the shipped logs (`datasets/data/<rel>`), as text.
+pub fn data(rel: &str) -> String {
+    repo(&format!("datasets/data/{rel}"))
+}
+
+/// The sorting line's plant file, as shipped beside its logs.
+pub fn plant() -> String {
+    data("sorting/normal/plant.toml")
+}
+
+/// The model `gardefou learn` gives on the shipped normal run, learned once
+/// for all the tests of the binary.
+pub fn learned_model() -> &'static str {
+    static MODEL: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
+    &MODEL
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().expect("temp dir");
+            let path = dir.path().join("model.json").display().to_string();
+            let o = gardefou(&[
+                "learn",
+                "--plant",
+                &plant(),
+                "-q",
+                "-o",
+                &path,
+                &data("sorting/normal/events.csv"),
+            ]);
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            (dir, path)
+        })
+        .1
+}
 
 /// A tiny deterministic generator (SplitMix64): a fault plan or a pace drawn
 /// from a seed is the same on every run, so a failing run can be replayed,
