@@ -5,9 +5,12 @@
 //! Chromium, Graphviz), with helpers shared through [`support`] and [`st`].
 //! One binary links the workspace once instead of once per file.
 //!
-//! `tests/monitor_http.rs` stays a binary of its own: it raises this process's
-//! descriptor limit and floods a monitor with nearly as many connections as the
-//! process may open, which would starve the tests beside it.
+//! Two files stay binaries of their own, so that nothing runs beside them:
+//! `tests/monitor_http.rs` raises this process's descriptor limit and floods a
+//! monitor with nearly as many connections as the process may open, which
+//! would starve the tests beside it; `tests/monitor_modbus.rs` runs the monitor
+//! in real time (4× the plant's speed) through a slow, lossy network, one test
+//! at a time, and a loaded machine changes what it sees.
 
 mod support;
 
@@ -21,7 +24,6 @@ mod filter_st;
 mod learn_cli;
 mod monitor_can;
 mod monitor_cli;
-mod monitor_modbus;
 mod netfault;
 mod report_browser;
 mod report_cli;

@@ -15,7 +15,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Mutex, MutexGuard, mpsc};
 use std::time::{Duration, Instant};
 
-use crate::support;
+#[path = "it/support/mod.rs"]
+mod support;
 use crate::support::repo as path;
 use support::netfault::{Faults, Proxy};
 
