@@ -193,7 +193,7 @@ impl<'a, S: Records> EventReader<'a, S> {
     /// Whether the current row is an end row (empty signal and value).
     fn at_end_row(&self) -> bool {
         let [_, signal_col, value_col] = self.columns;
-        self.rows.field(signal_col).is_empty() && self.rows.field(value_col).is_empty()
+        self.rows.is_blank(signal_col) && self.rows.is_blank(value_col)
     }
 
     /// Reads the end row's time; no row may follow it.

@@ -252,7 +252,7 @@ impl<'a, S: Records> IntervalReader<'a, S> {
         let name = self.signals.name(signal);
         let value = rows.value(value_col, "value")?;
         let start = self.time.parse(rows, start_col, "t_start")?;
-        let end = if rows.field(end_col).is_empty() {
+        let end = if rows.is_blank(end_col) {
             None
         } else {
             let end = self.time.parse(rows, end_col, "t_end")?;

@@ -37,6 +37,20 @@ pub trait Records {
     fn line_no(&self) -> usize;
     /// The file named in error messages.
     fn path(&self) -> &Path;
+    /// Field `i` as the integer the container holds, if it holds one (a
+    /// Parquet integer column); `None` for text, which is parsed instead. Both
+    /// mean the same: an integer cell reads as its decimal text would.
+    fn integer(&self, _i: usize) -> Option<i64> {
+        None
+    }
+    /// Field `i` as the boolean the container holds, if it holds one.
+    fn boolean(&self, _i: usize) -> Option<bool> {
+        None
+    }
+    /// Whether field `i` is empty (or null), without rendering it.
+    fn is_blank(&self, i: usize) -> bool {
+        self.field(i).is_empty()
+    }
     /// Whether column `i` of the header can hold cells of `kind`; `Err` names
     /// the column's type otherwise. Text holds anything: CSV accepts every
     /// column, and its cells are checked one by one.
@@ -222,8 +236,22 @@ impl<S: Records> Rows<S> {
         ))
     }
 
+    /// Whether field `i` is empty.
+    pub(crate) fn is_blank(&self, i: usize) -> bool {
+        self.records.is_blank(i)
+    }
+
     /// Parses field `i`, named `name`, as a signal value.
     pub(crate) fn value(&self, i: usize, name: &str) -> Result<bool, Located> {
+        // Typed cells first: the same values as their text, without it.
+        if let Some(value) = self.records.boolean(i) {
+            return Ok(value);
+        }
+        match self.records.integer(i) {
+            Some(0) => return Ok(false),
+            Some(1) => return Ok(true),
+            _ => {}
+        }
         let text = self.field(i);
         parse_bool(text).ok_or_else(|| {
             self.field_error(
@@ -310,6 +338,13 @@ impl TimeParser {
         i: usize,
         name: &str,
     ) -> Result<Time, Located> {
+        // An integer cell is read as its decimal text would be.
+        if let (Some(v), TimeFormat::Numeric(unit)) = (rows.records.integer(i), self.format)
+            && let Some(t) = v.checked_mul(unit.nanos())
+        {
+            self.parsed_any = true;
+            return Ok(t);
+        }
         let text = rows.field(i);
         match self.format.parse(text) {
             Some(t) => {

@@ -24,7 +24,7 @@
 //! rows, each unmapping the file when done. Dropping the records closes the
 //! channel, which makes the callback ask the engine to stop.
 
-use std::fmt::Write as _;
+use std::cell::OnceCell;
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, sync_channel};
@@ -94,9 +94,24 @@ pub struct ParquetRecords {
     /// Rows before the current one (blank rows included).
     rows: u64,
     header: bool,
-    /// The current record's fields, as text, and their ranges in it.
+    /// The current record's text cells, one after the other.
     text: String,
-    fields: Vec<(usize, usize)>,
+    /// The current record's fields.
+    fields: Vec<Field>,
+    /// The text of its integer, float and boolean fields, written when asked
+    /// for (in an error message, say), not for every row.
+    rendered: Vec<OnceCell<String>>,
+}
+
+/// A field of the current record.
+#[derive(Debug, Clone, Copy)]
+enum Field {
+    /// Text, trimmed and unquoted: a range of `ParquetRecords::text`.
+    Text(usize, usize),
+    Int(i64),
+    Float(f64),
+    Bool(bool),
+    Null,
 }
 
 impl ParquetRecords {
@@ -117,6 +132,7 @@ impl ParquetRecords {
             header: false,
             text: String::new(),
             fields: Vec::new(),
+            rendered: Vec::new(),
         })
     }
 
@@ -128,8 +144,9 @@ impl ParquetRecords {
         for name in &self.names {
             let start = self.text.len();
             self.text.push_str(name);
-            self.fields.push((start, self.text.len()));
+            self.fields.push(Field::Text(start, self.text.len()));
         }
+        self.rendered = vec![OnceCell::new(); self.names.len()];
     }
 
     /// Moves to the next frame; `Ok(false)` at the end of the file.
@@ -155,19 +172,19 @@ impl ParquetRecords {
         }
     }
 
-    /// Renders row `i` of the current frame; `false` if all its cells are null.
-    fn render(&mut self, i: usize) -> bool {
+    /// Takes row `i` of the current frame; `false` if all its cells are null
+    /// or blank.
+    fn take_row(&mut self, i: usize) -> bool {
         self.text.clear();
         self.fields.clear();
-        let mut blank = true;
-        for cells in &self.cells {
-            let start = self.text.len();
-            blank &= !cells.render(i, &mut self.text);
-            let field = clean(&self.text[start..]);
-            let offset = field.as_ptr() as usize - self.text.as_ptr() as usize;
-            self.fields.push((offset, offset + field.len()));
+        for slot in &mut self.rendered {
+            slot.take();
         }
-        !blank
+        for cells in &self.cells {
+            let field = cells.field(i, &mut self.text);
+            self.fields.push(field);
+        }
+        (0..self.fields.len()).any(|k| !self.is_blank(k))
     }
 }
 
@@ -183,7 +200,7 @@ impl Records for ParquetRecords {
                 let i = self.next_row;
                 self.next_row += 1;
                 self.rows += 1;
-                if self.render(i) {
+                if self.take_row(i) {
                     return Ok(true);
                 }
             }
@@ -199,7 +216,38 @@ impl Records for ParquetRecords {
     }
 
     fn field(&self, i: usize) -> &str {
-        self.fields.get(i).map_or("", |&(a, b)| &self.text[a..b])
+        let Some(&field) = self.fields.get(i) else {
+            return "";
+        };
+        match field {
+            Field::Text(a, b) => &self.text[a..b],
+            Field::Null => "",
+            Field::Int(v) => self.rendered[i].get_or_init(|| v.to_string()),
+            Field::Float(v) => self.rendered[i].get_or_init(|| v.to_string()),
+            Field::Bool(v) => self.rendered[i].get_or_init(|| v.to_string()),
+        }
+    }
+
+    fn integer(&self, i: usize) -> Option<i64> {
+        match self.fields.get(i) {
+            Some(Field::Int(v)) => Some(*v),
+            _ => None,
+        }
+    }
+
+    fn boolean(&self, i: usize) -> Option<bool> {
+        match self.fields.get(i) {
+            Some(Field::Bool(v)) => Some(*v),
+            _ => None,
+        }
+    }
+
+    fn is_blank(&self, i: usize) -> bool {
+        match self.fields.get(i) {
+            None | Some(Field::Null) => true,
+            Some(Field::Text(a, b)) => a == b,
+            Some(_) => false,
+        }
     }
 
     fn column(&self, i: usize) -> usize {
@@ -288,26 +336,20 @@ impl Cells {
         })
     }
 
-    /// Appends cell `i` as text; `false` if it is null or blank.
-    fn render(&self, i: usize, out: &mut String) -> bool {
-        // Writing to a String cannot fail.
+    /// Cell `i`, its text (trimmed and unquoted) appended to `text`.
+    fn field(&self, i: usize, text: &mut String) -> Field {
         match self {
-            Cells::Text(ca) => ca.get(i).is_some_and(|s| {
-                out.push_str(s);
-                !s.trim_ascii().is_empty()
-            }),
-            Cells::Int(ca) => ca.get(i).is_some_and(|v| {
-                out.push_str(itoa::Buffer::new().format(v));
-                true
-            }),
-            Cells::Float(ca) => ca.get(i).is_some_and(|v| {
-                let _ = write!(out, "{v}");
-                true
-            }),
-            Cells::Bool(ca) => ca.get(i).is_some_and(|v| {
-                out.push_str(if v { "true" } else { "false" });
-                true
-            }),
+            Cells::Text(ca) => match ca.get(i) {
+                None => Field::Null,
+                Some(s) => {
+                    let start = text.len();
+                    text.push_str(clean(s));
+                    Field::Text(start, text.len())
+                }
+            },
+            Cells::Int(ca) => ca.get(i).map_or(Field::Null, Field::Int),
+            Cells::Float(ca) => ca.get(i).map_or(Field::Null, Field::Float),
+            Cells::Bool(ca) => ca.get(i).map_or(Field::Null, Field::Bool),
         }
     }
 }
