@@ -1578,8 +1578,7 @@ mod tests {
     use std::path::Path;
 
     use diagnoser::model::{
-        ClockInterval, Estimate as ModelEstimate, LearnSettings, Model, PartModel, Provenance,
-        SensorEstimate,
+        ClockInterval, CommandEstimate, LearnSettings, Model, PartModel, Provenance, SensorEstimate,
     };
 
     use super::*;
@@ -1664,7 +1663,7 @@ expr = "C6 & !A4"
                 states: Vec::new(),
                 transitions: Vec::new(),
                 estimates: vec![
-                    ModelEstimate {
+                    CommandEstimate {
                         actuators: "A4=1".into(),
                         intervals: vec![
                             iv("I1", 0.0, Some(20.0)),
@@ -1673,7 +1672,7 @@ expr = "C6 & !A4"
                         ],
                         sensors: Vec::new(),
                     },
-                    ModelEstimate {
+                    CommandEstimate {
                         actuators: "A4=0".into(),
                         intervals: vec![iv("I4", 0.0, Some(2980.0)), iv("I5", 2980.0, None)],
                         sensors: Vec::new(),

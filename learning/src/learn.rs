@@ -9,9 +9,9 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
 use vocabulary::model::{
-    ClockInterval, Estimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model, ModelClock,
-    PartModel, Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule, StateModel,
-    TransitionModel, edge_name,
+    ClockInterval, CommandEstimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model,
+    ModelClock, PartModel, Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule,
+    StateModel, TransitionModel, edge_name,
 };
 use vocabulary::{Located, Plant, SignalKind, Time};
 
@@ -1017,7 +1017,7 @@ impl PartLearner {
         margin: Time,
         scale: f64,
         untimed: &mut Vec<String>,
-    ) -> (Vec<Estimate>, Vec<SensorEstimate>) {
+    ) -> (Vec<CommandEstimate>, Vec<SensorEstimate>) {
         let sensors = self.names.len() - self.n_act;
         let mut estimates = Vec::new();
         // Per sensor: (interval name, value) over all actuator states.
@@ -1093,7 +1093,7 @@ impl PartLearner {
                     values: values.iter().map(|v| v.to_string()).collect(),
                 });
             }
-            estimates.push(Estimate {
+            estimates.push(CommandEstimate {
                 actuators: self.act_label(*act),
                 intervals,
                 sensors: sensor_rows,

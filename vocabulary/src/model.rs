@@ -125,7 +125,7 @@ pub struct PartModel {
     pub transitions: Vec<TransitionModel>,
     /// The partition of the command clock into intervals `I1`, `I2`, … per actuator
     /// state, and each sensor's value in them.
-    pub estimates: Vec<Estimate>,
+    pub estimates: Vec<CommandEstimate>,
     /// Each estimable sensor's estimate over all actuator states, in the form of
     /// seed 002: e.g. `Ĉ4 = I1 | I2 | I9 | I10`.
     pub sensor_estimates: Vec<SensorEstimate>,
@@ -268,7 +268,7 @@ impl Guard {
 /// The temporal estimates of a part's sensors after one actuator state is
 /// commanded.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Estimate {
+pub struct CommandEstimate {
     /// The actuators' values after the command, e.g. `A4=1`.
     pub actuators: String,
     /// Intervals of the command clock, in order, partitioning `[0, ∞)`.
@@ -288,7 +288,7 @@ pub struct ClockInterval {
     pub to: Option<f64>,
 }
 
-/// A sensor's estimated value over the intervals of an [`Estimate`].
+/// A sensor's estimated value over the intervals of a [`CommandEstimate`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SensorSchedule {
     /// Sensor name.
