@@ -741,8 +741,7 @@ pub(super) fn plural(n: usize) -> &'static str {
 
 /// Turns changes, arriving in time order but in any signal order within one
 /// time, into batches of events sorted by `(t, signal)` with at most one event
-/// per signal and time. Shared with the VCD reader (which is why it lives in a
-/// reader's module and not in `ingest`, whose `mod.rs` is someone else's file).
+/// per signal and time. Shared with the VCD reader.
 pub(super) struct ScanBatcher {
     /// Time of the open scan.
     t: Time,
