@@ -332,7 +332,6 @@ fn estimates_and_clocks(
             let intervals: Vec<String> = (s.intervals().into_iter())
                 .map(|n| qualify(&p.name, n))
                 .collect();
-            let intervals: Vec<&str> = intervals.iter().map(String::as_str).collect();
             let uncertain: Vec<String> = s.uncertain.iter().map(|n| qualify(&p.name, n)).collect();
             estimates.push(Estimate::from_model(
                 &s.sensor, &partition, &intervals, &uncertain,

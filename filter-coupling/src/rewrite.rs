@@ -46,10 +46,10 @@ impl Estimate {
     pub fn from_model(
         sensor: &str,
         partition: &str,
-        intervals: &[&str],
+        intervals: &[impl AsRef<str>],
         uncertain: &[String],
     ) -> Result<Estimate, String> {
-        let all: Vec<String> = intervals.iter().map(|s| s.to_string()).collect();
+        let all: Vec<String> = intervals.iter().map(|s| s.as_ref().to_string()).collect();
         if let Some(bad) = all
             .iter()
             .find(|s| !s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_'))

@@ -29,7 +29,7 @@ use vocabulary::{Event, Located, Location, SignalTable, Time, TimeFormat, TimeUn
 
 use crate::csv::{self, CsvRecords, TimeText};
 use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
-use crate::{EventLog, TimeFormatChoice};
+use crate::{Changes, EventLog, TimeFormatChoice};
 
 /// The header the writer writes.
 const HEADER: &str = "t,signal,value";
@@ -297,16 +297,7 @@ pub fn read_events_from<R: BufRead>(
     signals: &SignalTable,
     time: TimeFormatChoice,
 ) -> Result<EventLog, Located> {
-    let mut changes = EventChanges::open(EventReader::new(reader, path, signals, time)?)?;
-    let mut events = Vec::new();
-    while changes.read_scan(&mut events)? {}
-    Ok(EventLog {
-        format: changes.format(),
-        start: changes.start(),
-        initial: changes.initial().to_vec(),
-        events,
-        end: changes.end(),
-    })
+    EventChanges::open(EventReader::new(reader, path, signals, time)?)?.into_log()
 }
 
 /// An events log as its initial values, then its changes scan by scan: the
@@ -367,30 +358,28 @@ impl<'a, S: Records> EventChanges<'a, S> {
             next,
         })
     }
+}
 
-    /// The log's first time.
-    pub fn start(&self) -> Time {
+impl<S: Records> Changes for EventChanges<'_, S> {
+    fn start(&self) -> Time {
         self.start
     }
 
-    /// Every signal's value at the first time.
-    pub fn initial(&self) -> &[bool] {
+    fn initial(&self) -> &[bool] {
         &self.initial
     }
 
-    /// How the log writes its times.
-    pub fn format(&self) -> TimeFormat {
+    fn format(&self) -> TimeFormat {
         self.rows.format()
     }
 
-    /// The end the log declares, once the last scan is read.
-    pub fn end(&self) -> Option<Time> {
+    fn end(&self) -> Option<Time> {
         self.rows.end()
     }
 
     /// Appends the changes of the next scan (its rows at one time) to `out`,
     /// sorted by signal; `Ok(false)` at the end of the log.
-    pub fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
+    fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
         let Some(first) = self.next.take().map(Ok).or_else(|| self.rows.next()) else {
             return Ok(false);
         };

@@ -25,7 +25,7 @@ use vocabulary::{Event, Located, Location, SignalId, SignalTable, Time, TimeForm
 
 use crate::csv::{self, CsvRecords, TimeText};
 use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
-use crate::{EventLog, TimeFormatChoice};
+use crate::{Changes, EventLog, TimeFormatChoice};
 
 /// The header the writer writes.
 const HEADER: &str = "signal,value,t_start,t_end";
@@ -446,25 +446,22 @@ impl<'a, S: Records> IntervalChanges<'a, S> {
             path,
         })
     }
+}
 
-    /// The log's first time.
-    pub fn start(&self) -> Time {
+impl<S: Records> Changes for IntervalChanges<'_, S> {
+    fn start(&self) -> Time {
         self.unfold.start
     }
 
-    /// Every signal's value at the first time.
-    pub fn initial(&self) -> &[bool] {
+    fn initial(&self) -> &[bool] {
         &self.unfold.initial
     }
 
-    /// How the log writes its times.
-    pub fn format(&self) -> TimeFormat {
+    fn format(&self) -> TimeFormat {
         self.format
     }
 
-    /// Appends the changes of at least one more time to `out`, sorted by time
-    /// then signal; `Ok(false)` at the end of the log.
-    pub fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
+    fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
         let from = out.len();
         while out.len() == from {
             let Some(interval) = self.rows.next() else {

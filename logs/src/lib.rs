@@ -85,7 +85,7 @@ pub use scans::{
 };
 pub use stream::{Batches, IngestOptions, LogEnd, LogFormat, LogStream, open};
 
-use vocabulary::{Event, Time, TimeFormat, TimeUnit};
+use vocabulary::{Event, Located, Time, TimeFormat, TimeUnit};
 
 /// How a reader learns the representation of a log's timestamps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -95,6 +95,41 @@ pub enum TimeFormatChoice {
     /// Detect it from the first data row with [`TimeFormat::detect`]: RFC 3339 if
     /// the first timestamp is RFC 3339 text, numbers in this unit otherwise.
     Detect(TimeUnit),
+}
+
+/// A tabular log read as its opening values, then its changes scan by scan,
+/// in memory that does not grow with the log ([`EventChanges`],
+/// [`IntervalChanges`], [`ScanChanges`]).
+pub trait Changes {
+    /// The log's first time.
+    fn start(&self) -> Time;
+    /// Every signal's value at the first time.
+    fn initial(&self) -> &[bool];
+    /// How the log writes its times.
+    fn format(&self) -> TimeFormat;
+    /// Appends the changes of at least one more time to `out`, sorted by time
+    /// then signal; `Ok(false)` at the end of the log.
+    fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located>;
+    /// The end the log declares, once its last scan is read.
+    fn end(&self) -> Option<Time> {
+        None
+    }
+
+    /// Every change, in memory: the whole log.
+    fn into_log(mut self) -> Result<EventLog, Located>
+    where
+        Self: Sized,
+    {
+        let mut events = Vec::new();
+        while self.read_scan(&mut events)? {}
+        Ok(EventLog {
+            format: self.format(),
+            start: self.start(),
+            initial: self.initial().to_vec(),
+            events,
+            end: self.end(),
+        })
+    }
 }
 
 /// A whole log, whatever its form: initial values and the changes that follow.

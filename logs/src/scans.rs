@@ -20,7 +20,7 @@ use vocabulary::{Event, Located, SignalId, SignalTable, Time, TimeFormat, TimeUn
 
 use crate::csv::{self, CsvRecords, TimeText};
 use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
-use crate::{EventLog, TimeFormatChoice};
+use crate::{Changes, EventLog, TimeFormatChoice};
 
 /// Writes a scans log: the header `t` plus every signal in table order, then one
 /// row per scan.
@@ -281,16 +281,7 @@ pub fn read_scans_as_events_from<R: BufRead>(
     signals: &SignalTable,
     time: TimeFormatChoice,
 ) -> Result<EventLog, Located> {
-    let mut changes = ScanChanges::open(ScanReader::new(reader, path, signals, time)?)?;
-    let mut events = Vec::new();
-    while changes.read_scan(&mut events)? {}
-    Ok(EventLog {
-        format: changes.format(),
-        start: changes.start(),
-        initial: changes.initial().to_vec(),
-        events,
-        end: None,
-    })
+    ScanChanges::open(ScanReader::new(reader, path, signals, time)?)?.into_log()
 }
 
 /// A scans log as its initial values (its first row), then its changes row by
@@ -319,25 +310,24 @@ impl<'a, S: Records> ScanChanges<'a, S> {
             initial,
         })
     }
+}
 
-    /// The log's first time.
-    pub fn start(&self) -> Time {
+impl<S: Records> Changes for ScanChanges<'_, S> {
+    fn start(&self) -> Time {
         self.start
     }
 
-    /// Every signal's value in the first row.
-    pub fn initial(&self) -> &[bool] {
+    fn initial(&self) -> &[bool] {
         &self.initial
     }
 
-    /// How the log writes its times.
-    pub fn format(&self) -> TimeFormat {
+    fn format(&self) -> TimeFormat {
         self.rows.format()
     }
 
     /// Appends the changes of the next row to `out`, by signal; `Ok(false)` at
     /// the end of the log.
-    pub fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
+    fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
         let Some(scan) = self.rows.next_scan() else {
             return Ok(false);
         };

@@ -15,8 +15,8 @@ use vocabulary::{Event, Located, Plant, SignalTable, Time, TimeFormat};
 use crate::csv::CsvRecords;
 use crate::rows::{Records, file_error, open_file};
 use crate::{
-    EventChanges, EventReader, IngestOptions, IntervalChanges, IntervalReader, LogEnd, LogFormat,
-    LogStream, ScanChanges, ScanReader, TimeFormatChoice,
+    Changes, EventChanges, EventReader, IngestOptions, IntervalChanges, IntervalReader, LogEnd,
+    LogFormat, LogStream, ScanChanges, ScanReader, TimeFormatChoice,
 };
 
 /// What the reading thread tells the stream.
@@ -29,45 +29,6 @@ enum Msg {
     Batch(Vec<Event>),
     Failed(Located),
 }
-
-/// A log read as its opening values, then its changes scan by scan.
-trait Changes {
-    fn start(&self) -> Time;
-    fn initial(&self) -> &[bool];
-    fn format(&self) -> TimeFormat;
-    /// Appends the next scan's changes; `Ok(false)` at the end.
-    fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located>;
-    /// The end the log declares, once its last scan is read.
-    fn end(&self) -> Option<Time> {
-        None
-    }
-}
-
-macro_rules! changes {
-    ($type:ident $(, $end:ident)?) => {
-        impl<S: Records> Changes for $type<'_, S> {
-            fn start(&self) -> Time {
-                $type::start(self)
-            }
-            fn initial(&self) -> &[bool] {
-                $type::initial(self)
-            }
-            fn format(&self) -> TimeFormat {
-                $type::format(self)
-            }
-            fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
-                $type::read_scan(self, out)
-            }
-            $(fn end(&self) -> Option<Time> {
-                $type::$end(self)
-            })?
-        }
-    };
-}
-
-changes!(EventChanges, end);
-changes!(ScanChanges);
-changes!(IntervalChanges);
 
 /// Opens a CSV or Parquet log of one of the three forms.
 pub(crate) fn open(
@@ -141,41 +102,45 @@ struct Job {
 
 impl Job {
     fn run(&self, send: &SyncSender<Msg>, end: &LogEnd) -> Result<(), Located> {
-        let (path, signals, choice) = (self.path.as_path(), &self.signals, self.choice);
         match self.format {
-            LogFormat::EventsCsv => {
-                let reader = EventReader::from_records(self.csv()?, signals, choice)?;
-                self.stream(EventChanges::open(reader)?, send, end)
-            }
-            LogFormat::ScansCsv => {
-                let reader = ScanReader::from_records(self.csv()?, signals, choice)?;
-                self.stream(ScanChanges::open(reader)?, send, end)
-            }
-            LogFormat::IntervalsCsv => {
-                let open = || IntervalReader::from_records(self.csv()?, signals, choice);
-                self.stream(IntervalChanges::open(open)?, send, end)
+            LogFormat::EventsCsv | LogFormat::IntervalsCsv | LogFormat::ScansCsv => {
+                self.form(|| self.csv(), send, end)
             }
             #[cfg(feature = "parquet")]
-            LogFormat::EventsParquet => {
-                let reader = EventReader::from_records(self.parquet()?, signals, choice)?;
-                self.stream(EventChanges::open(reader)?, send, end)
-            }
-            #[cfg(feature = "parquet")]
-            LogFormat::ScansParquet => {
-                let reader = ScanReader::from_records(self.parquet()?, signals, choice)?;
-                self.stream(ScanChanges::open(reader)?, send, end)
-            }
-            #[cfg(feature = "parquet")]
-            LogFormat::IntervalsParquet => {
-                let open = || IntervalReader::from_records(self.parquet()?, signals, choice);
-                self.stream(IntervalChanges::open(open)?, send, end)
+            LogFormat::EventsParquet | LogFormat::IntervalsParquet | LogFormat::ScansParquet => {
+                self.form(|| self.parquet(), send, end)
             }
             other => Err(file_error(
-                path,
+                &self.path,
                 format!(
                     "{other:?} is not a form this build reads (Parquet needs the `parquet` feature)"
                 ),
             )),
+        }
+    }
+
+    /// Streams the form's changes over the records `open` gives (twice for
+    /// the intervals form).
+    fn form<S: Records>(
+        &self,
+        open: impl Fn() -> Result<S, Located>,
+        send: &SyncSender<Msg>,
+        end: &LogEnd,
+    ) -> Result<(), Located> {
+        let (signals, choice) = (&self.signals, self.choice);
+        match self.format {
+            LogFormat::EventsCsv | LogFormat::EventsParquet => {
+                let reader = EventReader::from_records(open()?, signals, choice)?;
+                self.stream(EventChanges::open(reader)?, send, end)
+            }
+            LogFormat::ScansCsv | LogFormat::ScansParquet => {
+                let reader = ScanReader::from_records(open()?, signals, choice)?;
+                self.stream(ScanChanges::open(reader)?, send, end)
+            }
+            _ => {
+                let reader = || IntervalReader::from_records(open()?, signals, choice);
+                self.stream(IntervalChanges::open(reader)?, send, end)
+            }
         }
     }
 
