@@ -33,7 +33,7 @@ use std::collections::hash_map::Entry;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
 
-use petgraph::algo::tarjan_scc;
+use petgraph::algo::kosaraju_scc;
 use petgraph::graph::{DiGraph, NodeIndex};
 
 use crate::error::{Located, Location, line_column};
@@ -1478,7 +1478,9 @@ fn cyclic_components(graph: &[Vec<(usize, usize, usize)>], keep: &[bool]) -> Vec
         }
     }
     let mut component = vec![None; graph.len()];
-    let cyclic = tarjan_scc(&kept)
+    // Kosaraju: petgraph runs it iteratively, where its Tarjan recurses once per
+    // node on a path, which a long cycle of pairs would overflow the stack with.
+    let cyclic = kosaraju_scc(&kept)
         .into_iter()
         .filter(|members| members.len() > 1 || kept.contains_edge(members[0], members[0]));
     for (id, members) in cyclic.enumerate() {
@@ -1644,5 +1646,32 @@ fn show(name: &str) -> String {
         name.to_string()
     } else {
         format!("\"{name}\"")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cyclic_components;
+
+    #[test]
+    fn a_long_cycle_is_one_cyclic_component_and_a_dangling_node_none() {
+        // Nodes 0 -> 1 -> … -> n-1 -> 0, longer than any recursion a test
+        // thread's stack holds, and node n reached from the cycle only.
+        let n = 100_000;
+        let mut graph: Vec<Vec<(usize, usize, usize)>> =
+            (0..n).map(|v| vec![((v + 1) % n, 0, 0)]).collect();
+        graph[0].push((n, 0, 0));
+        graph.push(Vec::new());
+        let component = cyclic_components(&graph, &vec![true; n + 1]);
+        assert!(
+            component[..n]
+                .iter()
+                .all(|&c| c.is_some() && c == component[0])
+        );
+        assert_eq!(component[n], None);
+        // Left out of the graph, one node breaks the cycle.
+        let mut keep = vec![true; n + 1];
+        keep[n / 2] = false;
+        assert!(cyclic_components(&graph, &keep).iter().all(Option::is_none));
     }
 }

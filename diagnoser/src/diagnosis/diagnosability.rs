@@ -33,10 +33,9 @@
 
 use std::collections::HashMap;
 
-use petgraph::graph::NodeIndex;
+use petgraph::algo::{kosaraju_scc, toposort};
+use petgraph::graph::{DiGraph, EdgeIndex, NodeIndex};
 use petgraph::visit::EdgeRef;
-
-use petgraph::graph::EdgeIndex;
 
 use super::compile::{Commands, Compiled, Trigger};
 use super::engine::Engine;
@@ -329,7 +328,7 @@ impl Successors {
         }
     }
 
-    fn of(&self, e: petgraph::graph::EdgeIndex, source_position: usize) -> &[u32] {
+    fn of(&self, e: EdgeIndex, source_position: usize) -> &[u32] {
         let (lo, hi) = self.ranges[self.first_entry[e.index()] + source_position];
         &self.targets[lo as usize..hi as usize]
     }
@@ -630,7 +629,7 @@ impl PairContext<'_> {
     }
 
     /// An observation of the compiled graph, in words.
-    fn observation(&self, node: NodeIndex, e: petgraph::graph::EdgeIndex) -> String {
+    fn observation(&self, node: NodeIndex, e: EdgeIndex) -> String {
         let part = &self.engine.part;
         let obs = self.engine.state(self.compiled.graph[node].state).obs;
         match &self.compiled.graph[e] {
@@ -646,7 +645,7 @@ impl PairContext<'_> {
     }
 }
 
-type PairEdge = (usize, bool, petgraph::graph::EdgeIndex);
+type PairEdge = (usize, bool, EdgeIndex);
 
 /// The graph of pairs, its edges stored flat: the edges of pair `u` are
 /// `edges[start[u]..start[u + 1]]`, as (target pair, scan edge, compiled edge).
@@ -684,53 +683,30 @@ impl PairGraph {
         &self.edges[self.start[u]..end]
     }
 
-    /// Strongly connected components (Tarjan, iterative): pairs with the same
-    /// number are on a common cycle.
+    /// The pairs as a petgraph graph, edges in the same order.
+    fn digraph(&self) -> DiGraph<(), ()> {
+        let mut g = DiGraph::with_capacity(self.len(), self.edges.len());
+        for _ in 0..self.len() {
+            g.add_node(());
+        }
+        for u in 0..self.len() {
+            for &(v, _, _) in self.out(u) {
+                g.add_edge(NodeIndex::new(u), NodeIndex::new(v), ());
+            }
+        }
+        g
+    }
+
+    /// Strongly connected components: pairs with the same number are on a
+    /// common cycle. Kosaraju's passes are iterative in petgraph (its Tarjan
+    /// recurses once per pair on a path, and a long path of pairs would
+    /// overflow the stack).
     fn components(&self) -> Vec<usize> {
         debug_assert_eq!(self.len(), self.nodes);
-        let n = self.len();
-        const NONE: usize = usize::MAX;
-        let (mut index, mut low, mut comp) = (vec![NONE; n], vec![0; n], vec![NONE; n]);
-        let (mut on_stack, mut stack) = (vec![false; n], Vec::new());
-        let (mut next, mut count) = (0, 0);
-        let mut call: Vec<(usize, usize)> = Vec::new();
-        for root in 0..n {
-            if index[root] != NONE {
-                continue;
-            }
-            call.push((root, 0));
-            while let Some(&mut (u, ref mut k)) = call.last_mut() {
-                if *k == 0 {
-                    index[u] = next;
-                    low[u] = next;
-                    next += 1;
-                    stack.push(u);
-                    on_stack[u] = true;
-                }
-                let out = self.out(u);
-                if let Some(&(v, _, _)) = out.get(*k) {
-                    *k += 1;
-                    if index[v] == NONE {
-                        call.push((v, 0));
-                    } else if on_stack[v] {
-                        low[u] = low[u].min(index[v]);
-                    }
-                    continue;
-                }
-                call.pop();
-                if let Some(&(parent, _)) = call.last() {
-                    low[parent] = low[parent].min(low[u]);
-                }
-                if low[u] == index[u] {
-                    while let Some(w) = stack.pop() {
-                        on_stack[w] = false;
-                        comp[w] = count;
-                        if w == u {
-                            break;
-                        }
-                    }
-                    count += 1;
-                }
+        let mut comp = vec![0; self.len()];
+        for (c, members) in kosaraju_scc(&self.digraph()).into_iter().enumerate() {
+            for u in members {
+                comp[u.index()] = c;
             }
         }
         comp
@@ -738,10 +714,10 @@ impl PairGraph {
 }
 
 /// A cycle through at least one scan edge, as (pair, edge taken) steps.
-fn find_cycle(adj: &PairGraph, comp: &[usize]) -> Option<Vec<(usize, petgraph::graph::EdgeIndex)>> {
+fn find_cycle(adj: &PairGraph, comp: &[usize]) -> Option<Vec<(usize, EdgeIndex)>> {
     // A scan edge inside a strongly connected component closes a cycle.
     // The shortest of the first cycles found reads best as a counterexample.
-    let mut best: Option<Vec<(usize, petgraph::graph::EdgeIndex)>> = None;
+    let mut best: Option<Vec<(usize, EdgeIndex)>> = None;
     let mut tried = 0;
     for u in 0..adj.len() {
         for &(v, scan, e) in adj.out(u) {
@@ -765,11 +741,11 @@ fn bfs_path(
     comp: &[usize],
     from: usize,
     to: usize,
-) -> Option<Vec<(usize, petgraph::graph::EdgeIndex)>> {
+) -> Option<Vec<(usize, EdgeIndex)>> {
     if from == to {
         return Some(Vec::new());
     }
-    let mut prev: HashMap<usize, (usize, petgraph::graph::EdgeIndex)> = HashMap::new();
+    let mut prev: HashMap<usize, (usize, EdgeIndex)> = HashMap::new();
     let mut queue = std::collections::VecDeque::from([from]);
     while let Some(u) = queue.pop_front() {
         for &(v, _, e) in adj.out(u) {
@@ -794,42 +770,30 @@ fn bfs_path(
     None
 }
 
-/// Longest path, counted in scan edges, of an acyclic pair graph.
+/// Longest path, counted in scan edges, of an acyclic pair graph: pairs in
+/// reverse topological order, each one step longer than its best successor.
 fn longest(adj: &PairGraph) -> usize {
-    let n = adj.len();
-    let mut memo: Vec<Option<usize>> = vec![None; n];
-    // Iterative post-order DFS.
-    for s in 0..n {
-        if memo[s].is_some() {
-            continue;
-        }
-        let mut stack = vec![(s, 0usize)];
-        while let Some((u, k)) = stack.pop() {
-            let out = adj.out(u);
-            if k < out.len() {
-                stack.push((u, k + 1));
-                let v = out[k].0;
-                if memo[v].is_none() && !stack.iter().any(|&(w, _)| w == v) {
-                    stack.push((v, 0));
-                }
-            } else {
-                let best = out
-                    .iter()
-                    .map(|&(v, scan, _)| memo[v].unwrap_or(0) + usize::from(scan))
-                    .max()
-                    .unwrap_or(0);
-                memo[u] = Some(best);
-            }
-        }
+    let Ok(order) = toposort(&adj.digraph(), None) else {
+        // Only called without a cycle; with one, there is no bound.
+        return usize::MAX;
+    };
+    let mut best = vec![0usize; adj.len()];
+    for u in order.into_iter().rev().map(NodeIndex::index) {
+        best[u] = adj
+            .out(u)
+            .iter()
+            .map(|&(v, scan, _)| best[v] + usize::from(scan))
+            .max()
+            .unwrap_or(0);
     }
-    memo.into_iter().flatten().max().unwrap_or(0)
+    best.into_iter().max().unwrap_or(0)
 }
 
 fn describe(
     engine: &Engine,
     compiled: &Compiled,
     nodes: &[Pair],
-    cycle: &[(usize, petgraph::graph::EdgeIndex)],
+    cycle: &[(usize, EdgeIndex)],
     other: &str,
     unit: TimeUnit,
 ) -> Counterexample {
@@ -873,5 +837,65 @@ fn describe(
         observed,
         faulty,
         other_run,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Pairs `0 -> 1 -> … -> n-1`, every edge a scan, closed into a cycle
+    /// when `closed`.
+    fn path(n: usize, closed: bool) -> PairGraph {
+        let mut adj = PairGraph::with_nodes(n);
+        for u in 0..n {
+            adj.start_node();
+            if u + 1 < n {
+                adj.push((u + 1, true, EdgeIndex::new(0)));
+            } else if closed {
+                adj.push((0, true, EdgeIndex::new(0)));
+            }
+        }
+        adj
+    }
+
+    // A path of pairs longer than any recursion a test thread's stack holds.
+    const DEEP: usize = 100_000;
+
+    #[test]
+    fn a_long_cycle_of_pairs_is_one_component_and_its_counterexample_is_found() {
+        let adj = path(DEEP, true);
+        let comp = adj.components();
+        assert!(comp.iter().all(|&c| c == comp[0]));
+        let cycle = find_cycle(&adj, &comp).expect("the cycle");
+        assert_eq!(cycle.len(), DEEP);
+    }
+
+    #[test]
+    fn a_long_acyclic_path_of_pairs_bounds_the_scans_by_its_length() {
+        let adj = path(DEEP, false);
+        let comp = adj.components();
+        assert_eq!(
+            comp.iter().collect::<std::collections::HashSet<_>>().len(),
+            DEEP
+        );
+        assert_eq!(find_cycle(&adj, &comp), None);
+        assert_eq!(longest(&adj), DEEP - 1);
+    }
+
+    #[test]
+    fn the_longest_path_counts_scan_edges_only() {
+        // 0 -> 1 (scan) -> 3, and 0 -> 2 -> 3 (time edges): one scan at most.
+        let mut adj = PairGraph::with_nodes(4);
+        let e = EdgeIndex::new(0);
+        adj.start_node();
+        adj.push((1, true, e));
+        adj.push((2, false, e));
+        adj.start_node();
+        adj.push((3, false, e));
+        adj.start_node();
+        adj.push((3, false, e));
+        adj.start_node();
+        assert_eq!(longest(&adj), 1);
     }
 }
