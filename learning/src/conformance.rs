@@ -8,7 +8,7 @@
 use std::collections::HashMap;
 
 use vocabulary::model::{Model, ModelClock, PartModel};
-use vocabulary::{Located, Location, Plant, Time};
+use vocabulary::{Located, Location, Plant, Time, TimeUnit};
 
 use crate::replay::{Change, PartRoutes};
 use logs::LogStream;
@@ -48,8 +48,9 @@ impl<'m> PartCheck<'m> {
         }
     }
 
-    /// The time by which the current state must have been left, if any.
-    fn deadline(&self, scale: f64) -> Option<Time> {
+    /// The time by which the current state must have been left, if any: the
+    /// latest end of the windows of the transitions it expects.
+    fn deadline(&self, unit: TimeUnit) -> Option<Time> {
         let id = *self.states.get(&self.state)?;
         let st = &self.model.states[id];
         if st.stable || st.expected.is_empty() {
@@ -58,8 +59,8 @@ impl<'m> PartCheck<'m> {
         st.expected
             .iter()
             .filter_map(|e| {
-                self.clock_origin(&e.clock)
-                    .map(|o| o + (e.by * scale).round() as Time)
+                let window = self.model.transitions.get(e.transition)?.guard.window(unit);
+                self.clock_origin(&e.clock).map(|o| o + window.hi)
             })
             .max()
     }
@@ -77,7 +78,7 @@ impl<'m> PartCheck<'m> {
 
 /// Replays `log` against `model` and returns every violation, in time order per part.
 pub fn deviations(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<Deviation>, Located> {
-    let scale = model.time_unit.nanos() as f64;
+    let unit = model.time_unit;
     let mut parts: Vec<PartCheck> = Vec::new();
     let mut routes = PartRoutes::new(plant.signals.len());
     for pm in &model.parts {
@@ -141,24 +142,24 @@ pub fn deviations(model: &Model, plant: &Plant, log: LogStream) -> Result<Vec<De
         log.batches,
         log.start,
         &mut states,
-        |t, changes| step(&mut parts, t, changes, scale, &mut out),
+        |t, changes| step(&mut parts, t, changes, unit, &mut out),
         |_| {},
     )?;
     // Deadlines up to the log's declared end count: nothing changed until then.
     let end = declared.extend(last_t, None);
     for pc in &mut parts {
-        missed(pc, end, scale, &mut out);
+        missed(pc, end, unit, &mut out);
     }
     out.sort_by_key(|v| v.t);
     Ok(out)
 }
 
 /// Reports a missed deadline of the current state if `now` is past it.
-fn missed(pc: &mut PartCheck, now: Time, scale: f64, out: &mut Vec<Deviation>) {
+fn missed(pc: &mut PartCheck, now: Time, unit: TimeUnit, out: &mut Vec<Deviation>) {
     if pc.reported {
         return;
     }
-    let Some(deadline) = pc.deadline(scale) else {
+    let Some(deadline) = pc.deadline(unit) else {
         return;
     };
     if now > deadline {
@@ -196,11 +197,11 @@ fn step(
     parts: &mut [PartCheck],
     t: Time,
     changes: &[Change],
-    scale: f64,
+    unit: TimeUnit,
     out: &mut Vec<Deviation>,
 ) {
     for pc in parts.iter_mut() {
-        missed(pc, t, scale, out);
+        missed(pc, t, unit, out);
     }
     for &Change {
         part,
@@ -225,8 +226,8 @@ fn step(
             }),
             Some(tr) if tr.timed => {
                 if let Some(o) = pc.clock_origin(&tr.clock) {
-                    let clock = (t - o) as f64 / scale;
-                    if !tr.guard.admits(clock) {
+                    if !tr.guard.window(unit).admits(t - o) {
+                        let clock = (t - o) as f64 / unit.nanos() as f64;
                         out.push(Deviation {
                             t,
                             part: pc.model.name.clone(),

@@ -12,8 +12,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::TimeUnit;
 use crate::error::{Located, Location};
+use crate::{Time, TimeUnit};
 
 /// Version of the `model.json` schema written by this build.
 pub const MODEL_VERSION: u32 = 1;
@@ -206,7 +206,9 @@ pub struct Expectation {
     pub event: String,
     /// Clock the deadline is measured on (see [`TransitionModel::clock`]).
     pub clock: String,
-    /// Latest time on that clock (the guard's upper bound).
+    /// Latest time on that clock: the transition guard's upper bound, for
+    /// readers of the file. The model check and the diagnosers read the
+    /// guard itself ([`Guard::window`]).
     pub by: f64,
 }
 
@@ -259,9 +261,37 @@ pub struct Guard {
 }
 
 impl Guard {
-    /// Whether a clock reading satisfies the guard used.
-    pub fn admits(&self, clock: f64) -> bool {
-        self.lo <= clock && clock <= self.hi
+    /// The guard used, in the log's time. The diagnosers and the model check
+    /// both read a guard through this, so they agree to the nanosecond.
+    pub fn window(&self, unit: TimeUnit) -> Window {
+        let scale = unit.nanos() as f64;
+        let to_ns = |x: f64| (x * scale).round() as Time;
+        Window {
+            lo: to_ns(self.lo),
+            hi: to_ns(self.hi),
+        }
+    }
+}
+
+/// When a transition may come: `[lo, hi]` on its clock, both ends included.
+/// Past `hi`, an expected transition is late.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    /// Earliest clock reading.
+    pub lo: Time,
+    /// Latest clock reading.
+    pub hi: Time,
+}
+
+impl Window {
+    /// Whether the transition may come `elapsed` after its clock's origin.
+    pub fn admits(&self, elapsed: Time) -> bool {
+        self.lo <= elapsed && elapsed <= self.hi
+    }
+
+    /// Whether, `elapsed` after its clock's origin, the transition is late.
+    pub fn missed(&self, elapsed: Time) -> bool {
+        elapsed > self.hi
     }
 }
 

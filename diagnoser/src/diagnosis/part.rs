@@ -23,7 +23,7 @@ use std::collections::HashMap;
 use crate::fault::FaultTemplate;
 use crate::model::{ModelClock, PartModel, SensorKind, edge_name};
 use crate::plant::{Part, Plant};
-use crate::{SignalId, Time};
+use crate::{SignalId, Time, TimeUnit};
 
 /// Most signals a part may have: states are bit vectors of this width.
 pub const MAX_PART_SIGNALS: usize = 16;
@@ -271,13 +271,13 @@ pub type BuildError = String;
 
 impl PartDiagnoser {
     /// Builds the diagnoser of `part` from its learned `model` and the faults of
-    /// `plant` that concern it. `scale` is nanoseconds per model time unit.
+    /// `plant` that concern it. `unit` is the model's time unit.
     /// `glitch_max` bounds how long an unexpected edge shows (nanoseconds).
     pub fn build(
         plant: &Plant,
         part: &Part,
         model: &PartModel,
-        scale: f64,
+        unit: TimeUnit,
         glitch_max: Time,
     ) -> Result<PartDiagnoser, BuildError> {
         let (signals, names) = part_signals(plant, part, model)?;
@@ -298,7 +298,7 @@ impl PartDiagnoser {
             vectors.len(),
             &mut clocks,
             &bit_of,
-            scale,
+            unit,
             inputs,
             act_mask,
         )?;
@@ -1657,11 +1657,10 @@ impl LearnedMoves {
         motion_states: usize,
         clocks: &mut ClockTable<'_>,
         bit_of: &impl Fn(&str) -> Option<u8>,
-        scale: f64,
+        unit: TimeUnit,
         inputs: u32,
         act_mask: u32,
     ) -> Result<LearnedMoves, BuildError> {
-        let to_ns = |x: f64| (x * scale).round() as Time;
         let mut moves: Vec<Vec<Move>> = vec![Vec::new(); motion_states];
         let mut events = Vec::with_capacity(model.transitions.len());
         let mut windows = Vec::with_capacity(model.transitions.len());
@@ -1674,7 +1673,8 @@ impl LearnedMoves {
             };
             events.push(t.event.clone());
             let clock = clocks.index(&t.clock, bit_of)?;
-            windows.push((clock, to_ns(t.guard.hi), t.timed));
+            let window = t.guard.window(unit);
+            windows.push((clock, window.hi, t.timed));
             let changed = (from ^ to) & !inputs;
             if changed == 0 {
                 continue; // an input's edge alone: allowed anywhere
@@ -1684,8 +1684,8 @@ impl LearnedMoves {
                 changed,
                 command: changed & act_mask != 0,
                 clock,
-                lo: to_ns(t.guard.lo),
-                hi: to_ns(t.guard.hi),
+                lo: window.lo,
+                hi: window.hi,
                 timed: t.timed,
                 lent: false,
             });

@@ -146,7 +146,6 @@ impl PlantDiagnoser {
                 model.plant, plant.name
             ));
         }
-        let scale = model.time_unit.nanos() as f64;
         let mut engines = Vec::new();
         for part in &plant.parts {
             let Some(pm) = model.parts.iter().find(|p| p.name == part.name) else {
@@ -156,7 +155,7 @@ impl PlantDiagnoser {
                 plant,
                 part,
                 pm,
-                scale,
+                model.time_unit,
                 options.glitch_max,
             )?));
         }

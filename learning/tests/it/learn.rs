@@ -193,13 +193,19 @@ fn cylinder_log(stroke: i64, name: &str, plant: &vocabulary::Plant) -> LogStream
     }
 }
 
-fn stroke_guard(strokes: &[i64], drift: f64) -> vocabulary::model::Guard {
-    let plant = vocabulary::Plant::parse(
+/// A plant of one cylinder `Y`→`B`, part `cyl`, with no fault declared.
+fn cylinder_plant() -> vocabulary::Plant {
+    vocabulary::Plant::parse(
         "name = \"c\"\nscan_period_ms = 10\n[signals]\nY = { kind = \"actuator\" }\n\
          B = { kind = \"sensor\" }\n[[parts]]\nname = \"cyl\"\nactuators = [\"Y\"]\nsensors = [\"B\"]\n",
         std::path::Path::new("c.toml"),
     )
-    .expect("plant");
+    .expect("plant")
+}
+
+/// The cylinder's model, learned from one log per stroke.
+fn cylinder_model(strokes: &[i64], drift: f64) -> Model {
+    let plant = cylinder_plant();
     let options = LearnOptions {
         drift,
         ..LearnOptions::default()
@@ -210,8 +216,11 @@ fn stroke_guard(strokes: &[i64], drift: f64) -> vocabulary::model::Guard {
             .learn_log(cylinder_log(s, &format!("run{i}"), &plant), |_| {})
             .expect("learns");
     }
-    let model = learner.finish();
-    part(&model, "cyl")
+    learner.finish()
+}
+
+fn stroke_guard(strokes: &[i64], drift: f64) -> vocabulary::model::Guard {
+    part(&cylinder_model(strokes, drift), "cyl")
         .transitions
         .iter()
         .find(|t| t.event == "RE(B)")
@@ -556,4 +565,43 @@ fn an_edge_that_often_follows_the_product_flow_is_never_timed() {
     // Every workpiece 300 ms after the stroke's end: the part's own timing.
     let (t, _) = during_stroke(&learn_logs(&plant, &[arrivals(|_| true)]));
     assert!(t.timed, "{t:?}");
+}
+
+/// Whether the diagnosers leave "normal" on `log`.
+fn diagnosers_object(plant: &vocabulary::Plant, model: &Model, log: LogStream) -> bool {
+    use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, VerdictKind};
+    let mut diagnoser =
+        PlantDiagnoser::new(plant, model, &DiagnoserOptions::default()).expect("diagnoser");
+    let mut objected = false;
+    let mut out = |v: diagnoser::diagnosis::Verdict| objected |= v.verdict != VerdictKind::Normal;
+    diagnoser.start(log.start, &log.initial);
+    let mut last = log.start;
+    for batch in log.batches {
+        for e in batch.expect("events") {
+            last = e.t;
+            diagnoser.push(e, &mut out);
+        }
+    }
+    diagnoser.finish(last + SECOND, &mut out);
+    objected
+}
+
+#[test]
+fn the_model_check_and_the_diagnosers_agree_on_a_guards_last_nanosecond() {
+    // Strokes of 600 ms against guards that end 0.4 ns and 0.6 ns before
+    // 600 ms: read in nanoseconds, the first ends at 600 ms (on time), the
+    // second 1 ns before (late). Both readers of the model must say the same.
+    let plant = cylinder_plant();
+    for (hi_ns, late) in [(600e6 - 0.4, false), (600e6 - 0.6, true)] {
+        let mut model = cylinder_model(&[500], 3.0);
+        for t in &mut model.parts[0].transitions {
+            if t.event.ends_with("(B)") {
+                t.guard.hi = hi_ns / 1e6;
+            }
+        }
+        let log = || cylinder_log(600, "at the boundary", &plant);
+        let deviations = deviations(&model, &plant, log()).expect("checks");
+        assert_eq!(!deviations.is_empty(), late, "{:?}", deviations.first());
+        assert_eq!(diagnosers_object(&plant, &model, log()), late);
+    }
 }
