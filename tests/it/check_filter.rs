@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Output;
 
-use crate::support::{gardefou, plant};
+use crate::support::{assert_bad_input, gardefou, plant};
 use serde_json::Value;
 
 /// The model learned from the shipped normal run (`gardefou learn` on
@@ -105,8 +105,5 @@ fn without_filter_the_json_has_no_filter_field() {
 #[test]
 fn filter_with_a_generator_is_bad_input() {
     let o = gardefou(&["check", "--gen", "x.gen", "--failures", "y.txt", "--filter"]);
-    assert_eq!(o.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(err.lines().count(), 1, "{err}");
-    assert!(err.contains("--filter"), "{err}");
+    assert_bad_input(&o, "--filter");
 }

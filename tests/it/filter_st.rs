@@ -27,7 +27,7 @@ use filter_coupling::st::{StOptions, generate};
 use learning::learn::{LearnOptions, Learner};
 use logs::{IngestOptions, open};
 
-use crate::support::{gardefou, repo as path};
+use crate::support::{assert_bad_input, gardefou, repo as path};
 use st::Fb;
 
 const MINUTE: Time = 60 * SECOND;
@@ -790,11 +790,7 @@ fn command_line_prints_the_function_block_and_rejects_bad_input() {
     ] {
         let mut all = vec!["filter", "st", "--plant", plant.as_str()];
         all.extend(args);
-        let o = gardefou(&all);
-        assert_eq!(o.status.code(), Some(2), "{all:?}");
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(err.lines().count(), 1, "{err}");
-        assert!(err.contains(needle), "{needle}: {err}");
+        assert_bad_input(&gardefou(&all), needle);
     }
     let o = gardefou(&["filter", "st", "--plant", &other, "--model", &model]);
     assert_eq!(o.status.code(), Some(2));

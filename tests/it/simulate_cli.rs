@@ -4,7 +4,7 @@ use std::fs;
 use std::path::Path;
 use std::process::Output;
 
-use crate::support::gardefou;
+use crate::support::{assert_bad_input, gardefou};
 use diagnoser::{Plant, SECOND, TimeUnit};
 use logs::{read_events, read_intervals_as_events};
 
@@ -158,19 +158,8 @@ fn cylinders_plant_runs() {
     assert_eq!(damage["damage"], serde_json::json!([]));
 }
 
-fn assert_bad_input(o: &Output, needle: &str) {
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "stderr: {stderr}");
-    assert_eq!(
-        stderr.trim_end().lines().count(),
-        1,
-        "one-line error expected, got: {stderr}"
-    );
-    assert!(stderr.contains(needle), "'{needle}' not in: {stderr}");
-}
-
 #[test]
-fn bad_arguments_give_one_line_and_exit_code_2_and_keep_earlier_files() {
+fn bad_arguments_exit_2_with_the_whole_message_and_keep_earlier_files() {
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("run");
     assert!(simulate(&out, &["--duration", "2min"]).status.success());
@@ -194,6 +183,12 @@ fn bad_arguments_give_one_line_and_exit_code_2_and_keep_earlier_files() {
     assert_bad_input(
         &gardefou(&["simulate", "--plant", "mill", "--out", "x"]),
         "mill",
+    );
+    // clap's own errors keep their whole message: what, the usage, a hint.
+    assert_bad_input(&gardefou(&["simulate", "--bogus"]), "'--bogus'");
+    assert_bad_input(
+        &gardefou(&["learn", "--suggest-parts", "x.csv"]),
+        "--plant <PLANT>",
     );
 
     assert_eq!(

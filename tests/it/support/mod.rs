@@ -99,3 +99,31 @@ impl Rng {
         lo + hi.saturating_sub(lo).mul_f64(self.unit())
     }
 }
+
+/// Asserts a bad-input exit (code 2) in one of the two forms errors take:
+/// one line `gardefou: …` (a file's or a value's error), or clap's whole
+/// message for a command line it rejects (`error: …`, the arguments it
+/// concerns, the usage where it helps, a hint), ending with a newline.
+/// `needle` is in the message, before the usage.
+pub fn assert_bad_input(o: &Output, needle: &str) {
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "stderr: {stderr}");
+    assert!(stderr.ends_with('\n'), "no final newline: {stderr:?}");
+    let message = if stderr.starts_with("error: ") {
+        let hint = "\nFor more information, try '--help'.\n";
+        assert!(
+            stderr.ends_with(hint),
+            "clap's message without its hint: {stderr}"
+        );
+        stderr
+            .split("\nUsage: ")
+            .next()
+            .unwrap_or_default()
+            .to_string()
+    } else {
+        assert!(stderr.starts_with("gardefou: "), "{stderr}");
+        assert_eq!(stderr.lines().count(), 1, "one line expected: {stderr}");
+        stderr.to_string()
+    };
+    assert!(message.contains(needle), "'{needle}' not in: {stderr}");
+}
