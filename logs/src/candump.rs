@@ -44,6 +44,7 @@ use std::collections::HashMap;
 use std::fmt;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
+use vocabulary::error::quoted;
 
 use vocabulary::{Event, Located, Location, Plant, SignalId, Time, TimeFormat, TimeUnit};
 
@@ -545,8 +546,8 @@ fn parse_line(line: &str) -> Result<Option<Frame>, (usize, String)> {
         return Err((
             stamp_column,
             format!(
-                "expected a timestamp in parentheses such as (1436509052.249713), found '{}': this is not a candump -L line",
-                shown(stamp)
+                "expected a timestamp in parentheses such as (1436509052.249713), found {}: this is not a candump -L line",
+                quoted(stamp)
             ),
         ));
     };
@@ -559,8 +560,8 @@ fn parse_line(line: &str) -> Result<Option<Frame>, (usize, String)> {
             (
                 t_column,
                 format!(
-                    "bad timestamp '{}': expected seconds since the epoch, such as 1436509052.249713",
-                    shown(inner)
+                    "bad timestamp {}: expected seconds since the epoch, such as 1436509052.249713",
+                    quoted(inner)
                 ),
             )
         })?;
@@ -580,7 +581,7 @@ fn parse_line(line: &str) -> Result<Option<Frame>, (usize, String)> {
         if !matches!(extra, "R" | "T") || fields.next().is_some() {
             return Err((
                 column,
-                format!("unexpected '{}' after the frame", shown(extra)),
+                format!("unexpected {} after the frame", quoted(extra)),
             ));
         }
     }
@@ -593,7 +594,7 @@ fn parse_frame(text: &str, column: usize) -> Result<Option<(u32, Payload)>, (usi
     let Some(hash) = text.find('#') else {
         return Err((
             column,
-            format!("expected a frame such as 181#0102, found '{}'", shown(text)),
+            format!("expected a frame such as 181#0102, found {}", quoted(text)),
         ));
     };
     let id_text = &text[..hash];
@@ -601,8 +602,8 @@ fn parse_frame(text: &str, column: usize) -> Result<Option<(u32, Payload)>, (usi
         (
             column,
             format!(
-                "bad CAN identifier '{}': expected 3 hex digits (standard frame, at most 7FF) or 8 (extended frame)",
-                shown(id_text)
+                "bad CAN identifier {}: expected 3 hex digits (standard frame, at most 7FF) or 8 (extended frame)",
+                quoted(id_text)
             ),
         )
     };
@@ -677,8 +678,8 @@ fn parse_data(
         return Err((
             column,
             format!(
-                "odd number of hex digits in the data '{}': each byte takes two",
-                shown(text)
+                "odd number of hex digits in the data {}: each byte takes two",
+                quoted(text)
             ),
         ));
     }
@@ -713,15 +714,6 @@ impl<'a> Iterator for Fields<'a> {
             .unwrap_or(self.line.len() - start);
         self.at = start + len;
         Some((start + 1, &self.line[start..start + len]))
-    }
-}
-
-/// `text`, cut short for messages.
-fn shown(text: &str) -> String {
-    const MAX: usize = 40;
-    match text.char_indices().nth(MAX) {
-        Some((end, _)) => format!("{}…", &text[..end]),
-        None => text.to_string(),
     }
 }
 

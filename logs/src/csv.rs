@@ -7,7 +7,7 @@
 //! fields cannot contain commas, quotes or line breaks — log values never need to).
 
 use std::fmt::Write as _;
-use std::io::{self, BufRead, BufWriter, Write};
+use std::io::{self, BufRead, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use vocabulary::{Located, Location, SignalTable, Time, TimeFormat};
@@ -25,6 +25,10 @@ struct Field {
     end: usize,
     column: usize,
 }
+
+/// The longest line a CSV log may have, in bytes: a bound on the memory a
+/// file that is not a log (or has no line breaks) can take.
+pub const LONGEST_LINE: usize = 1 << 20;
 
 /// The records of a CSV log, read one line at a time, reusing their buffers.
 pub struct CsvRecords<R> {
@@ -54,7 +58,11 @@ impl<R: BufRead> CsvRecords<R> {
         loop {
             let mut bytes = std::mem::take(&mut self.line).into_bytes();
             bytes.clear();
-            let read = self.reader.read_until(b'\n', &mut bytes);
+            let read = self
+                .reader
+                .by_ref()
+                .take(LONGEST_LINE as u64 + 1)
+                .read_until(b'\n', &mut bytes);
             let n = match read {
                 Ok(n) => n,
                 Err(e) => return Err(crate::rows::cannot_read(&self.path, self.line_no + 1, &e)),
@@ -64,6 +72,14 @@ impl<R: BufRead> CsvRecords<R> {
                 return Ok(false);
             }
             self.line_no += 1;
+            if n > LONGEST_LINE && bytes.last() != Some(&b'\n') {
+                let location = Location::new(&self.path, self.line_no, 1);
+                let message = format!(
+                    "line longer than {} MiB: not a log's line (a header of 10,000 signals takes 0.1 MiB)",
+                    LONGEST_LINE >> 20
+                );
+                return Err(Located::new(location, message));
+            }
             let mut text = match String::from_utf8(bytes) {
                 Ok(text) => text,
                 Err(e) => {

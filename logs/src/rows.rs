@@ -11,6 +11,7 @@
 use std::fs::File;
 use std::io::BufReader;
 use std::path::Path;
+use vocabulary::error::quoted;
 
 use vocabulary::{Located, Location, SignalId, SignalTable, Time, TimeFormat};
 
@@ -177,7 +178,7 @@ impl<S: Records> Rows<S> {
                     format!("empty column name (expected {expected})"),
                 ));
             } else {
-                let message = format!("unknown column '{name}' (expected {expected})");
+                let message = format!("unknown column {} (expected {expected})", quoted(name));
                 return Err(self.error(self.records.column(i), None, message));
             };
             if duplicate {
@@ -257,7 +258,7 @@ impl<S: Records> Rows<S> {
             self.field_error(
                 i,
                 name,
-                format!("bad value '{text}': expected 0, 1, true or false"),
+                format!("bad value {}: expected 0, 1, true or false", quoted(text)),
             )
         })
     }
@@ -274,7 +275,7 @@ impl<S: Records> Rows<S> {
             if text.is_empty() {
                 self.field_error(i, name, "missing signal name")
             } else {
-                self.field_error(i, name, format!("unknown signal '{text}'"))
+                self.field_error(i, name, format!("unknown signal {}", quoted(text)))
             }
         })
     }
@@ -362,7 +363,7 @@ impl TimeParser {
                 let message = if text.is_empty() {
                     format!("missing time: expected {expected}")
                 } else {
-                    format!("bad time '{text}': expected {expected}")
+                    format!("bad time {}: expected {expected}", quoted(text))
                 };
                 Err(rows.field_error(i, name, message))
             }
@@ -409,7 +410,7 @@ pub(crate) fn backwards(t: &str, previous: &str, line: usize) -> String {
 
 /// The message for a column named twice.
 pub(crate) fn duplicate_column(name: &str) -> String {
-    format!("duplicate column '{name}'")
+    format!("duplicate column {}", quoted(name))
 }
 
 /// An error about the whole file.

@@ -15,6 +15,7 @@
 
 use std::io::{self, BufRead, BufWriter, Write};
 use std::path::Path;
+use vocabulary::error::quoted;
 
 use vocabulary::{Event, Located, SignalId, SignalTable, Time, TimeFormat, TimeUnit};
 
@@ -136,7 +137,7 @@ impl<'a, S: Records> ScanReader<'a, S> {
                 } else if name.is_empty() {
                     "empty column name (expected t or a signal name)".to_string()
                 } else {
-                    format!("unknown column '{name}': not a signal of the plant")
+                    format!("unknown column {}: not a signal of the plant", quoted(name))
                 };
                 return Err(rows.error(rows.column(i), None, message));
             };

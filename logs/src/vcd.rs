@@ -49,6 +49,7 @@
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
+use vocabulary::error::quoted;
 
 use vocabulary::{Event, Located, Location, Plant, SignalId, Time, TimeFormat, TimeUnit};
 
@@ -256,8 +257,8 @@ impl<R: BufRead> Tokens<R> {
                 out.push((self.text().to_string(), self.tok_line, self.tok_column));
             } else if keep > 0 {
                 return Err(self.error(format!(
-                    "unexpected '{}' in {command}: expected $end",
-                    shown(self.text())
+                    "unexpected {} in {command}: expected $end",
+                    quoted(self.text())
                 )));
             }
         }
@@ -385,8 +386,8 @@ impl<R: BufRead> Reader<R> {
                 }
                 t => {
                     return Err(self.tokens.error(format!(
-                        "unexpected '{}' in the header: expected a $command such as $var, or $enddefinitions $end",
-                        shown(t)
+                        "unexpected {} in the header: expected a $command such as $var, or $enddefinitions $end",
+                        quoted(t)
                     )));
                 }
             }
@@ -408,8 +409,8 @@ impl<R: BufRead> Reader<R> {
                 line,
                 column,
                 format!(
-                    "bad timescale '{}': expected 1, 10 or 100 followed by s, ms, us, ns, ps or fs",
-                    shown(&written)
+                    "bad timescale {}: expected 1, 10 or 100 followed by s, ms, us, ns, ps or fs",
+                    quoted(&written)
                 ),
             )
         };
@@ -455,8 +456,8 @@ impl<R: BufRead> Reader<R> {
                 size.1,
                 size.2,
                 format!(
-                    "bad size '{}' in $var: expected a number of bits",
-                    shown(&size.0)
+                    "bad size {} in $var: expected a number of bits",
+                    quoted(&size.0)
                 ),
             )
         })?;
@@ -471,8 +472,8 @@ impl<R: BufRead> Reader<R> {
                     name.1,
                     name.2,
                     format!(
-                        "'{}' is not a signal of the plant file: every 1-bit variable must be named after one",
-                        shown(&full)
+                        "{} is not a signal of the plant file: every 1-bit variable must be named after one",
+                        quoted(&full)
                     ),
                 )
             })?;
@@ -509,8 +510,8 @@ impl<R: BufRead> Reader<R> {
                     code.1,
                     code.2,
                     format!(
-                        "identifier code '{}' is declared again with another size or type",
-                        shown(&code.0)
+                        "identifier code {} is declared again with another size or type",
+                        quoted(&code.0)
                     ),
                 ));
             }
@@ -585,8 +586,8 @@ impl<R: BufRead> Reader<R> {
                         line,
                         column,
                         format!(
-                            "'{}' is {what}, not a value of a 1-bit signal",
-                            shown(&format!("{}{text}", first as char))
+                            "{} is {what}, not a value of a 1-bit signal",
+                            quoted(&format!("{}{text}", first as char))
                         ),
                     )),
                     (Some(Var::Signals(_)), Ok(value)) => {
@@ -617,8 +618,8 @@ impl<R: BufRead> Reader<R> {
                 Ok(Step::Other)
             }
             _ => Err(self.tokens.error(format!(
-                "unexpected '{}': expected #<time>, a value change such as 1! or a $command",
-                shown(self.tokens.text())
+                "unexpected {}: expected #<time>, a value change such as 1! or a $command",
+                quoted(self.tokens.text())
             ))),
         }
     }
@@ -633,8 +634,8 @@ impl<R: BufRead> Reader<R> {
             .flatten()
             .ok_or_else(|| {
                 self.tokens.error(format!(
-                    "bad time '{}': expected # followed by a whole number of timescale units",
-                    shown(self.tokens.text())
+                    "bad time {}: expected # followed by a whole number of timescale units",
+                    quoted(self.tokens.text())
                 ))
             })?;
         if let Some((previous, line)) = self.previous {
@@ -739,20 +740,11 @@ impl<R: BufRead> Iterator for Reader<R> {
     }
 }
 
-/// `text`, cut short for messages.
-fn shown(text: &str) -> String {
-    const MAX: usize = 40;
-    match text.char_indices().nth(MAX) {
-        Some((end, _)) => format!("{}…", &text[..end]),
-        None => text.to_string(),
-    }
-}
-
 /// The message for a value change of an identifier code no `$var` declares.
 fn undeclared(code: &str) -> String {
     format!(
-        "identifier code '{}' is not declared by any $var",
-        shown(code)
+        "identifier code {} is not declared by any $var",
+        quoted(code)
     )
 }
 

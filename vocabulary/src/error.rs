@@ -62,13 +62,36 @@ pub struct Located {
 }
 
 impl Located {
-    /// An error at `location`.
+    /// An error at `location`. A message is cut to [`LONGEST_MESSAGE`]
+    /// characters, whatever it quotes.
     pub fn new(location: Location, message: impl Into<String>) -> Self {
         Located {
             location,
-            message: message.into(),
+            message: cut(message.into(), LONGEST_MESSAGE),
         }
     }
+}
+
+/// The longest quotation of the input in a message, in characters.
+pub const LONGEST_QUOTE: usize = 80;
+
+/// The longest message, in characters: a bound for messages that quote
+/// several things.
+pub const LONGEST_MESSAGE: usize = 1_000;
+
+/// `'text'`, cut to [`LONGEST_QUOTE`] characters with `…`: a message quotes
+/// the input it rejects, never a megabyte of it.
+pub fn quoted(text: &str) -> String {
+    format!("'{}'", cut(text.to_string(), LONGEST_QUOTE))
+}
+
+/// `text` cut to `longest` characters, `…` marking the cut.
+fn cut(mut text: String, longest: usize) -> String {
+    if let Some((end, _)) = text.char_indices().nth(longest) {
+        text.truncate(end);
+        text.push('…');
+    }
+    text
 }
 
 /// Line and column (from 1) of a byte offset in `text`.
@@ -109,5 +132,29 @@ impl Failure {
         } else {
             Failure::Io(format!("cannot write the output: {e}"))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_quotation_is_cut_on_a_character_boundary() {
+        assert_eq!(quoted("C4"), "'C4'");
+        let long = "é".repeat(LONGEST_QUOTE + 1);
+        let q = quoted(&long);
+        assert_eq!(q.chars().count(), LONGEST_QUOTE + 3, "{q}");
+        assert!(q.ends_with("é…'"), "{q}");
+        assert_eq!(
+            quoted(&long[..2 * LONGEST_QUOTE]),
+            format!("'{}'", "é".repeat(LONGEST_QUOTE))
+        );
+    }
+
+    #[test]
+    fn a_message_is_bounded_whatever_it_quotes() {
+        let e = Located::new(Location::new(Path::new("f"), 1, 1), "x".repeat(1 << 20));
+        assert_eq!(e.message.chars().count(), LONGEST_MESSAGE + 1);
     }
 }

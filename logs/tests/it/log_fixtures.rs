@@ -256,3 +256,25 @@ fn a_missing_file_is_an_error_not_a_panic() {
         read_events(&crate_dir().join(path), &turntable(), TimeUnit::Ms).expect_err("missing file");
     assert!(e.message.starts_with("cannot open the log"), "{e}");
 }
+
+#[test]
+fn a_line_longer_than_a_mib_is_refused_in_a_short_message() {
+    // A file with no line breaks (or not a log at all) must not be held
+    // whole, nor echoed: the reader stops at 1 MiB and says so.
+    let mut text = String::from("t,signal,value\n0,");
+    text.push_str(&"C4".repeat(1 << 20));
+    text.push_str(",1\n");
+    let err = read_events_from(
+        std::io::Cursor::new(text),
+        Path::new("long.csv"),
+        &turntable(),
+        TimeFormatChoice::Detect(TimeUnit::Ms),
+    )
+    .expect_err("refused");
+    let message = err.to_string();
+    assert!(
+        message.starts_with("long.csv:2:1: line longer than 1 MiB"),
+        "{message}"
+    );
+    assert!(message.len() < 200, "{message}");
+}
