@@ -67,6 +67,7 @@ pub mod intervals;
 pub mod parquet;
 mod rows;
 pub mod scans;
+mod spool;
 mod stream;
 mod threaded;
 pub mod vcd;

@@ -390,10 +390,7 @@ pub(crate) fn open(path: &Path) -> Result<BufReader<File>, Located> {
     open_file(path).map(BufReader::new)
 }
 
-/// Opens a log file, or says why not.
-pub(crate) fn open_file(path: &Path) -> Result<File, Located> {
-    File::open(path).map_err(|e| file_error(path, format!("cannot open the log: {e}")))
-}
+pub(crate) use crate::spool::open_file;
 
 /// The error for a log that cannot be read past line `line`.
 pub(crate) fn cannot_read(path: &Path, line: usize, e: &std::io::Error) -> Located {

@@ -21,6 +21,7 @@ use std::sync::{Arc, OnceLock};
 use vocabulary::{Event, Located, Plant, Time, TimeFormat, TimeUnit};
 
 use crate::detect::detect_format;
+use crate::spool::Spool;
 use crate::{candump, threaded, vcd};
 
 /// The forms of log gardefou reads.
@@ -180,7 +181,9 @@ impl std::fmt::Debug for LogStream {
 }
 
 /// Opens the log at `path`, of the form `options.format` or else the detected
-/// one ([`detect_format`]), for the signals of `plant`.
+/// one ([`detect_format`]), for the signals of `plant`. A pipe, FIFO or
+/// character device is read once, into a temporary file that is deleted when
+/// the stream is dropped, since reading a log may open it more than once.
 ///
 /// CSV and Parquet logs of the three forms are read by the form's reader
 /// ([`crate::EventReader`], [`crate::IntervalReader`], [`crate::ScanReader`]) on
@@ -205,6 +208,20 @@ impl std::fmt::Debug for LogStream {
 /// plus one (as if the column names were line 1), and the column is the
 /// 1-based index of the column in the file's schema.
 pub fn open(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
+    let Some(spool) = Spool::of(path)? else {
+        return open_regular(path, plant, options);
+    };
+    let mut log = open_regular(path, plant, options)?;
+    let batches = log.batches;
+    // The copy lives as long as the batches are read.
+    log.batches = Box::new(batches.inspect(move |_| {
+        let _ = &spool;
+    }));
+    Ok(log)
+}
+
+/// [`open`] on a file that can be opened more than once.
+fn open_regular(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<LogStream, Located> {
     let format = match options.format {
         Some(format) => format,
         None => detect_format(path)?,

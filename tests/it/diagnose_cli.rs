@@ -371,3 +371,39 @@ fn a_cylinder_blocked_on_its_way_is_caught_by_the_reactions_deadline() {
         "the simulator writes the end row"
     );
 }
+
+#[test]
+fn a_log_through_a_fifo_reads_as_the_file_does() {
+    // A FIFO gives its bytes once; the intervals form is read in two passes
+    // and its form is told from its first line: the log is read once.
+    let dir = tempfile::tempdir().expect("temp dir");
+    for form in ["events.csv", "intervals.csv"] {
+        let file = data(&format!("sorting/F4/{form}"));
+        let fifo = dir.path().join(format!("fifo-{form}"));
+        let made = Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo runs");
+        assert!(made.success());
+        let (source, sink) = (PathBuf::from(&file), fifo.clone());
+        let writer = std::thread::spawn(move || {
+            fs::write(&sink, fs::read(&source).expect("log")).expect("writes the FIFO");
+        });
+        // Bounded: a reader that opened the FIFO twice would wait for ever.
+        let through_fifo = Command::new("timeout")
+            .args(["60", env!("CARGO_BIN_EXE_gardefou"), "diagnose", "--plant"])
+            .args([plant().as_str(), "--model", model()])
+            .arg(&fifo)
+            .output()
+            .expect("runs");
+        writer.join().expect("writer");
+        let direct = diagnose(&file, &[]);
+        assert!(direct.status.success() && !direct.stdout.is_empty());
+        assert_eq!(
+            String::from_utf8_lossy(&through_fifo.stdout),
+            String::from_utf8_lossy(&direct.stdout),
+            "{form}: {}",
+            String::from_utf8_lossy(&through_fifo.stderr)
+        );
+    }
+}

@@ -61,7 +61,7 @@ fn failure(path: &Path, message: &str) -> Located {
 /// The schema of a Parquet file, from its footer.
 fn schema(path: &Path) -> Result<SchemaRef, Located> {
     let failed = |e: PolarsError| failure(path, &e.to_string());
-    let source = PlRefPath::try_from_path(path).map_err(failed)?;
+    let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
     LazyFrame::scan_parquet(source, scan_args())
         .and_then(|mut lf| lf.collect_schema())
         .map_err(failed)
@@ -418,7 +418,7 @@ impl Frames {
 fn slices(path: &Path, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
     let failed = |e: PolarsError| failure(path, &e.to_string());
     let slice_rows = slice_rows.max(1);
-    let source = PlRefPath::try_from_path(path).map_err(failed)?;
+    let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
     let lf = LazyFrame::scan_parquet(source, scan_args()).map_err(failed)?;
     let file = open_file(path)?;
     let rows = ParquetReader::new(file).num_rows().map_err(failed)?;
