@@ -100,7 +100,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
             layout: Some(report::pictures::Layout::Auto),
         };
         let page = report::build(&plant, &model, &request)?;
-        report::write_atomically(path, page.as_bytes())?;
+        diagnoser::output::write_file(path, page.as_bytes())?;
         eprintln!(
             "report written to {} ({} bytes)",
             path.display(),

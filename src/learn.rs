@@ -1,11 +1,12 @@
 //! `gardefou learn`: learn one timed model per plant part from logs.
 
 use std::fs;
-use std::io::{IsTerminal, Write};
-use std::path::{Path, PathBuf};
+use std::io::IsTerminal;
+use std::path::PathBuf;
 
 use clap::Args;
 use diagnoser::model::{Model, SensorKind};
+use diagnoser::output::write_file;
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::conformance::deviations;
@@ -23,7 +24,9 @@ pub struct LearnArgs {
     /// Logs of normal operation (any form; several are combined).
     #[arg(required = true, value_name = "LOG")]
     logs: Vec<PathBuf>,
-    /// Where to write the model.
+    /// Where to write the model (`-`: standard output, the learning report then
+    /// going to standard error). A file is replaced whole or not at all; a
+    /// symbolic link is written through; a device or FIFO is written to.
     #[arg(short = 'o', long, default_value = "model.json")]
     output: PathBuf,
     /// Log form (default: detected from each file's header): events-csv,
@@ -132,7 +135,11 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
     let model = learner.finish();
     bar.finish_and_clear();
 
-    write_atomic(
+    if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        fs::create_dir_all(dir)
+            .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
+    }
+    write_file(
         &args.output,
         &serde_json::to_vec_pretty(&model).map_err(|e| Failure::Io(e.to_string()))?,
     )?;
@@ -140,14 +147,20 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         fs::create_dir_all(dir)
             .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
         for part in &model.parts {
-            write_atomic(
+            write_file(
                 &dir.join(format!("{}.dot", part.name)),
                 part_to_dot(&model, part).as_bytes(),
             )?;
         }
     }
     if !args.quiet {
-        print_report(&model);
+        // With the model on standard output, the report must not mix into it.
+        let report = learning_report(&model);
+        if args.output.as_os_str() == "-" {
+            eprint!("{report}");
+        } else {
+            print!("{report}");
+        }
         if !unassigned.is_empty() {
             eprintln!("note: sensors in no part, not learned: {unassigned}");
         }
@@ -195,26 +208,8 @@ fn progress_bar() -> ProgressBar {
     }
 }
 
-/// Writes beside the target, then renames: a failure never leaves half a file.
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
-    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    let result = (|| -> std::io::Result<()> {
-        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            fs::create_dir_all(parent)?;
-        }
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        let _ = fs::remove_file(&tmp);
-        Failure::Io(format!("cannot write {}: {e}", path.display()))
-    })
-}
-
 /// The learning report: per part and transition, the samples and the guard used.
-fn print_report(model: &Model) {
+fn learning_report(model: &Model) -> String {
     let unit = model.time_unit.name();
     let mut out = String::new();
     let s = &model.settings;
@@ -295,5 +290,5 @@ fn print_report(model: &Model) {
             }
         }
     }
-    print!("{out}");
+    out
 }

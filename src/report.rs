@@ -28,7 +28,9 @@ pub enum LayoutArg {
 pub struct ReportArgs {
     #[command(flatten)]
     replay: ReplayArgs,
-    /// The HTML file to write.
+    /// The HTML file to write (`-`: standard output). A file is replaced whole
+    /// or not at all; a symbolic link is written through; a device or FIFO is
+    /// written to.
     #[arg(short, long, value_name = "FILE")]
     output: PathBuf,
     /// Which flags the replayed safety filter reads.
@@ -54,7 +56,7 @@ pub fn run(args: ReportArgs) -> Result<(), Failure> {
         },
     };
     let page = report::build(&plant, &model, &request)?;
-    report::write_atomically(&args.output, page.as_bytes())?;
+    diagnoser::output::write_file(&args.output, page.as_bytes())?;
     eprintln!(
         "report written to {} ({} bytes)",
         args.output.display(),

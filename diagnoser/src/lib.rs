@@ -20,5 +20,5 @@ pub mod faudes;
 pub use vocabulary::{
     Event, Failure, FaultTemplate, Flag, FlagKind, Located, Location, MS, Plant, SECOND, Signal,
     SignalId, SignalKind, SignalTable, Time, TimeFormat, TimeUnit, error, expr, fault, flag, model,
-    plant, signal, time,
+    output, plant, signal, time,
 };

@@ -22,8 +22,8 @@ pub mod words;
 #[cfg(test)]
 mod fixtures;
 
-use std::io::{IsTerminal, Write};
-use std::path::{Path, PathBuf};
+use std::io::IsTerminal;
+use std::path::PathBuf;
 
 use diagnoser::diagnosis::DiagnoserOptions;
 use diagnoser::model::Model;
@@ -105,43 +105,4 @@ pub fn build(plant: &Plant, model: &Model, request: &Request) -> Result<String, 
         replays: &replays,
         pictures: &pictures,
     }))
-}
-
-/// Writes `bytes` to `path` through a temporary file in the same directory, so
-/// that a failure never leaves a half-written report in place of a good one.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let fail = |e: std::io::Error| Failure::Io(format!("cannot write {}: {e}", path.display()));
-    if path.is_dir() {
-        return Err(Failure::BadInput(format!(
-            "{}: is a directory, not a file to write the report to",
-            path.display()
-        )));
-    }
-    let mut tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            Failure::BadInput(format!(
-                "{}: no such directory to write the report in",
-                dir.display()
-            ))
-        } else {
-            fail(e)
-        }
-    })?;
-    tmp.write_all(bytes).map_err(fail)?;
-    tmp.flush().map_err(fail)?;
-    // A temporary file is private; a report is an ordinary document.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let mode = std::fs::metadata(path).map_or(0o644, |m| m.permissions().mode() & 0o777);
-        tmp.as_file()
-            .set_permissions(std::fs::Permissions::from_mode(mode))
-            .map_err(fail)?;
-    }
-    tmp.persist(path).map_err(|e| fail(e.error))?;
-    Ok(())
 }

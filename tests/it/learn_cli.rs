@@ -244,3 +244,30 @@ fn bad_input_gives_one_line_and_exit_code_2() {
     );
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[cfg(unix)]
+#[test]
+fn the_model_goes_through_a_symbolic_link_and_to_standard_output() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let real = dir.path().join("real.json");
+    fs::write(&real, "old").expect("old");
+    let link = dir.path().join("model.json");
+    std::os::unix::fs::symlink("real.json", &link).expect("link");
+    let log = data("sorting/normal/events.csv");
+    let (o, _) = learn(dir.path(), std::slice::from_ref(&log), &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        fs::symlink_metadata(&link)
+            .expect("link")
+            .file_type()
+            .is_symlink()
+    );
+    let through = model(&real);
+    // `-o -`: the model alone on standard output, the report on standard error.
+    let plant = data("sorting/normal/plant.toml");
+    let o = gardefou(&["learn", "--plant", &plant, "-o", "-", &log]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let printed: Model = serde_json::from_slice(&o.stdout).expect("only the model on stdout");
+    assert_eq!(printed, through);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("learned "));
+}

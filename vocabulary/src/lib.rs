@@ -25,6 +25,7 @@ pub mod expr;
 pub mod fault;
 pub mod flag;
 pub mod model;
+pub mod output;
 pub mod plant;
 pub mod signal;
 pub mod time;
