@@ -37,6 +37,7 @@ fn one_hour(c: &mut Criterion) {
             let files = RunFiles {
                 dir: dir.clone(),
                 scans: false,
+                archive: None,
             };
             write_run(&files, &mut line, &mut ctl, &config(), |_| {}).map(|r| r.scans)
         })

@@ -13,6 +13,7 @@ mod check;
 mod demo;
 mod diagnose;
 mod filter;
+mod interrupt;
 mod learn;
 mod monitor;
 mod report;

@@ -3,12 +3,12 @@
 //! Modbus TCP (`--serve-modbus`, see [`runtime::virtual_plc`]).
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::{Args, ValueEnum};
 use datasets::generated::{GeneratedPlant, Size};
 use datasets::inject::{FaultSpec, Injection};
-use datasets::output::{RunFiles, write_run};
+use datasets::output::{ArchiveWriter, RunFiles, write_run};
 use datasets::sim::SimConfig;
 use datasets::{cylinders, sorting};
 use diagnoser::model::Model;
@@ -272,6 +272,7 @@ fn write_files(
         seed: args.seed,
         faults,
     };
+    crate::interrupt::remove_on_interrupt(datasets::output::staging_dir(&args.out));
 
     let bar = if std::io::stderr().is_terminal() {
         let bar = ProgressBar::new((args.duration / scan_period.max(1)) as u64);
@@ -286,6 +287,9 @@ fn write_files(
     let files = RunFiles {
         dir: args.out.clone(),
         scans: args.scans,
+        archive: args
+            .parquet
+            .then_some(write_parquet_archive as ArchiveWriter),
     };
     let progress = |t: Time| bar.set_position((t / scan_period.max(1)) as u64);
     let report = match args.plant {
@@ -321,9 +325,6 @@ fn write_files(
     }
     .map_err(|e| Failure::Io(format!("cannot write {}: {e}", args.out.display())))?;
     bar.finish_and_clear();
-    if args.parquet {
-        write_parquet_archive(&args.out, plant, args.duration)?;
-    }
 
     let counters: Vec<String> = report
         .counters
@@ -349,24 +350,11 @@ fn constraint_control(plant: &diagnoser::Plant) -> Result<CoupledPlc, Failure> {
     Ok(CoupledPlc::new(filter, None, 0))
 }
 
-/// Writes `intervals.parquet` beside a finished run, from its `events.csv`.
-fn write_parquet_archive(
-    dir: &std::path::Path,
-    plant: &diagnoser::Plant,
-    end: Time,
-) -> Result<(), Failure> {
+/// Writes `intervals.parquet` beside a finished run's `events.csv`.
+fn write_parquet_archive(dir: &Path, plant: &diagnoser::Plant, end: Time) -> std::io::Result<()> {
     let log = logs::read_events(&dir.join("events.csv"), &plant.signals, plant.time_unit)
-        .map_err(|e| Failure::Io(e.to_string()))?;
-    let tmp = dir.join(format!(".intervals.parquet.{}", std::process::id()));
-    logs::write_intervals_parquet(&log, &plant.signals, &tmp, end)
-        .and_then(|()| std::fs::rename(&tmp, dir.join("intervals.parquet")))
-        .map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            Failure::Io(format!(
-                "cannot write {}: {e}",
-                dir.join("intervals.parquet").display()
-            ))
-        })
+        .map_err(std::io::Error::other)?;
+    logs::write_intervals_parquet(&log, &plant.signals, &dir.join("intervals.parquet"), end)
 }
 
 #[cfg(test)]

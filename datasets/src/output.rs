@@ -3,7 +3,10 @@
 //!
 //! Files are written into a hidden staging directory inside the target and moved
 //! into place only once the run has finished, so a failed or interrupted run never
-//! leaves half-written files, nor replaces those of an earlier run.
+//! leaves half-written files, nor replaces those of an earlier run. Once they
+//! are in place, the files of an earlier run that this one did not write are
+//! removed: a directory holds one run. Staging directories of killed runs are
+//! removed by the next run in the same directory.
 
 use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
@@ -22,7 +25,30 @@ pub struct RunFiles {
     pub dir: PathBuf,
     /// Also write the wide `scans.csv`.
     pub scans: bool,
+    /// Also write `intervals.parquet`, with this writer (which gets the
+    /// staging directory, holding the run's `events.csv`, the plant and the
+    /// run's end): the Parquet writer lives with the log layer's `parquet`
+    /// feature, which this crate does not build.
+    pub archive: Option<ArchiveWriter>,
 }
+
+/// Writes `intervals.parquet` into a directory holding a run's `events.csv`.
+pub type ArchiveWriter = fn(&Path, &Plant, Time) -> io::Result<()>;
+
+/// Every file a run may write: those the run at hand does not write are
+/// removed once it is in place, so that a directory never mixes two runs.
+pub const RUN_FILES: [&str; 7] = [
+    "events.csv",
+    "intervals.csv",
+    "scans.csv",
+    "intervals.parquet",
+    "truth.json",
+    "damage.json",
+    "plant.toml",
+];
+
+/// The prefix of the hidden directory a run is staged in, before its process id.
+const STAGING: &str = ".gardefou-staging-";
 
 type Out = BufWriter<File>;
 
@@ -125,9 +151,8 @@ pub fn write_run<P: Physics + Clone, C: Controller + Clone>(
     progress: impl FnMut(Time),
 ) -> io::Result<SimReport> {
     fs::create_dir_all(&files.dir)?;
-    let staging = files
-        .dir
-        .join(format!(".gardefou-staging-{}", std::process::id()));
+    remove_abandoned_staging(&files.dir);
+    let staging = staging_dir(&files.dir);
     let result = (|| {
         fs::create_dir_all(&staging)?;
         let plant = physics.plant().clone();
@@ -175,14 +200,52 @@ pub fn write_run<P: Physics + Clone, C: Controller + Clone>(
         if files.scans {
             names.push("scans.csv");
         }
-        for name in names {
+        if let Some(archive) = files.archive {
+            archive(&staging, &plant, config.duration)?;
+            names.push("intervals.parquet");
+        }
+        for name in &names {
             fs::rename(staging.join(name), files.dir.join(name))?;
+        }
+        for stale in RUN_FILES.iter().filter(|f| !names.contains(f)) {
+            match fs::remove_file(files.dir.join(stale)) {
+                Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
+                _ => {}
+            }
         }
         Ok(report)
     })();
     // Best effort: the staging directory is empty on success.
     let _ = fs::remove_dir_all(&staging);
     result
+}
+
+/// The directory this process stages a run in, inside `dir`.
+pub fn staging_dir(dir: &Path) -> PathBuf {
+    dir.join(format!("{STAGING}{}", std::process::id()))
+}
+
+/// Removes the staging directories in `dir` of runs whose process is gone
+/// (killed before it could clean up). Best effort: what cannot be removed
+/// stays, and only on Linux is a process known to be gone.
+fn remove_abandoned_staging(dir: &Path) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name.to_str().and_then(|n| n.strip_prefix(STAGING)) else {
+            continue;
+        };
+        let gone = pid.parse::<u32>().is_ok_and(|pid| {
+            pid != std::process::id()
+                && Path::new("/proc/self").exists()
+                && !Path::new("/proc").join(pid.to_string()).exists()
+        });
+        if gone {
+            let _ = fs::remove_dir_all(entry.path());
+        }
+    }
 }
 
 fn write_json(path: &Path, value: &serde_json::Value) -> io::Result<()> {

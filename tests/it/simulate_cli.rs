@@ -359,3 +359,74 @@ fn generated_plants_need_their_seed() {
         "unknown fault 'F2' for plant 'generated-3-medium'",
     );
 }
+
+#[test]
+fn a_run_replaces_the_whole_earlier_run_and_abandoned_staging() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("run");
+    let first = simulate(&out, &["--duration", "1min", "--parquet", "--scans"]);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    assert!(out.join("intervals.parquet").exists() && out.join("scans.csv").exists());
+    // A run killed before it could clean up left its staging directory (no
+    // process has this id: it is above Linux's largest).
+    let abandoned = out.join(".gardefou-staging-4294967");
+    fs::create_dir_all(&abandoned).expect("staging");
+    fs::write(abandoned.join("events.csv"), "half").expect("half a file");
+
+    let second = simulate(&out, &["--duration", "2min"]);
+    assert!(
+        second.status.success(),
+        "{}",
+        String::from_utf8_lossy(&second.stderr)
+    );
+    let mut left: Vec<String> = fs::read_dir(&out)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(
+        left,
+        [
+            "damage.json",
+            "events.csv",
+            "intervals.csv",
+            "plant.toml",
+            "truth.json"
+        ],
+        "files of the first run, or staging, left beside the second"
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_removes_its_staging_and_keeps_the_earlier_run() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("run");
+    assert!(simulate(&out, &["--duration", "1min"]).status.success());
+    let before = read(&out.join("events.csv"));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(["simulate", "--duration", "2000h", "--out"])
+        .arg(&out)
+        .spawn()
+        .expect("starts");
+    let staging = out.join(format!(".gardefou-staging-{}", child.id()));
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while !staging.join("events.csv").exists() {
+        assert!(std::time::Instant::now() < deadline, "no staging seen");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: signals the child this test started.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let status = child.wait().expect("ends");
+    assert_eq!(status.code(), Some(128 + libc::SIGTERM), "{status:?}");
+    assert!(!staging.exists(), "staging left behind");
+    assert_eq!(
+        read(&out.join("events.csv")),
+        before,
+        "the earlier run changed"
+    );
+}
