@@ -51,6 +51,20 @@ enum Command {
     Report(report::ReportArgs),
 }
 
+/// Runs one verb.
+fn run(command: Command) -> Result<(), Failure> {
+    match command {
+        Command::Learn(args) => learn::run(args),
+        Command::Simulate(args) => simulate::run(args),
+        Command::Diagnose(args) => diagnose::run(args),
+        Command::Check(args) => check::run(args),
+        Command::Demo(args) => demo::run(args),
+        Command::Filter(args) => filter::run(args),
+        Command::Monitor(args) => monitor::run(args),
+        Command::Report(args) => report::run(args),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
@@ -61,15 +75,17 @@ fn main() -> ExitCode {
             return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
         }
     };
-    let result = match cli.command {
-        Command::Learn(args) => learn::run(args),
-        Command::Simulate(args) => simulate::run(args),
-        Command::Diagnose(args) => diagnose::run(args),
-        Command::Check(args) => check::run(args),
-        Command::Demo(args) => demo::run(args),
-        Command::Filter(args) => filter::run(args),
-        Command::Monitor(args) => monitor::run(args),
-        Command::Report(args) => report::run(args),
+    diagnoser::panics::install_hook();
+    // With RUST_BACKTRACE set, Rust has reported the panic in full.
+    let result = match std::panic::catch_unwind(move || run(cli.command)) {
+        Ok(result) => result,
+        Err(payload) => {
+            if std::env::var_os("RUST_BACKTRACE").is_none() {
+                let message = diagnoser::panics::message(payload.as_ref());
+                eprintln!("gardefou: internal error: {message} (RUST_BACKTRACE=1 shows where)");
+            }
+            return ExitCode::from(101);
+        }
     };
     match result {
         Ok(()) | Err(Failure::Closed) => ExitCode::SUCCESS,

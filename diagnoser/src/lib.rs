@@ -20,5 +20,5 @@ pub mod faudes;
 pub use vocabulary::{
     Event, Failure, FaultTemplate, Flag, FlagKind, Located, Location, MS, Plant, SECOND, Signal,
     SignalId, SignalKind, SignalTable, Time, TimeFormat, TimeUnit, error, expr, fault, flag, model,
-    output, plant, signal, time,
+    output, panics, plant, signal, time,
 };

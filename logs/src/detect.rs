@@ -108,7 +108,7 @@ fn parquet_form(path: &Path) -> Result<LogFormat, Located> {
             Location::new(path, 0, 0),
             format!(
                 "cannot tell the form of the Parquet log from its columns {}: expected t,signal,value / signal,value,t_start,t_end / t,<signal>,…",
-                names.join(",")
+                vocabulary::error::printable(&names.join(","))
             ),
         ))
     }

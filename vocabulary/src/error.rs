@@ -79,10 +79,28 @@ pub const LONGEST_QUOTE: usize = 80;
 /// several things.
 pub const LONGEST_MESSAGE: usize = 1_000;
 
-/// `'text'`, cut to [`LONGEST_QUOTE`] characters with `…`: a message quotes
-/// the input it rejects, never a megabyte of it.
+/// `'text'`, as [`printable`] gives it: a message quotes the input it
+/// rejects, never a megabyte of it, nor bytes that move a terminal's cursor.
 pub fn quoted(text: &str) -> String {
-    format!("'{}'", cut(text.to_string(), LONGEST_QUOTE))
+    format!("'{}'", printable(text))
+}
+
+/// `text` cut to [`LONGEST_QUOTE`] characters with `…`, control characters
+/// written as escapes (`\n`, `\u{c}`): one line, whatever the input holds.
+pub fn printable(text: &str) -> String {
+    let mut shown = String::new();
+    for (i, c) in text.chars().enumerate() {
+        if i == LONGEST_QUOTE {
+            shown.push('…');
+            break;
+        }
+        if c.is_control() {
+            shown.extend(c.escape_debug());
+        } else {
+            shown.push(c);
+        }
+    }
+    shown
 }
 
 /// `text` cut to `longest` characters, `…` marking the cut.

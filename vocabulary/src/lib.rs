@@ -26,6 +26,7 @@ pub mod fault;
 pub mod flag;
 pub mod model;
 pub mod output;
+pub mod panics;
 pub mod plant;
 pub mod signal;
 pub mod time;

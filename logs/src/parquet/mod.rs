@@ -36,6 +36,7 @@ use polars::prelude::{
     SerReader, StringChunked,
 };
 use vocabulary::Located;
+use vocabulary::panics::{self, Containment};
 
 use crate::IngestOptions;
 use crate::rows::{CellKind, Records, file_error, open_file};
@@ -58,13 +59,55 @@ fn failure(path: &Path, message: &str) -> Located {
     )
 }
 
+/// Runs a call into polars with its panics contained: a malformed file can
+/// make polars panic (on this thread or on its pool's), and the user gets the
+/// panic's message as the file's error, not a crash.
+fn contained<T>(path: &Path, call: impl FnOnce() -> Result<T, Located>) -> Result<T, Located> {
+    let _quiet = Containment::start();
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(call))
+        .unwrap_or_else(|payload| Err(failure(path, &panics::message(payload.as_ref()))))
+}
+
+/// Checks what polars trusts before it decodes: the magic bytes at both ends,
+/// and a footer that fits in the file.
+fn check_frame(path: &Path) -> Result<(), Located> {
+    use std::io::{Read, Seek, SeekFrom};
+    let fail = |why: &str| failure(path, &format!("not a Parquet file: {why}"));
+    let mut file = open_file(path)?;
+    let size = file
+        .metadata()
+        .map_err(|e| failure(path, &e.to_string()))?
+        .len();
+    let (mut head, mut tail) = ([0u8; 4], [0u8; 8]);
+    let read = file
+        .read_exact(&mut head)
+        .and_then(|()| file.seek(SeekFrom::End(-8)))
+        .and_then(|_| file.read_exact(&mut tail));
+    if size < 12 || read.is_err() {
+        return Err(fail("shorter than its magic bytes and footer length"));
+    }
+    if &head != b"PAR1" || &tail[4..] != b"PAR1" {
+        return Err(fail("it does not begin and end with PAR1"));
+    }
+    let footer = u64::from(u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]));
+    if footer + 12 > size {
+        return Err(fail(&format!(
+            "its footer says it is {footer} bytes long, in a file of {size}"
+        )));
+    }
+    Ok(())
+}
+
 /// The schema of a Parquet file, from its footer.
 fn schema(path: &Path) -> Result<SchemaRef, Located> {
-    let failed = |e: PolarsError| failure(path, &e.to_string());
-    let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
-    LazyFrame::scan_parquet(source, scan_args())
-        .and_then(|mut lf| lf.collect_schema())
-        .map_err(failed)
+    check_frame(path)?;
+    contained(path, || {
+        let failed = |e: PolarsError| failure(path, &e.to_string());
+        let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
+        LazyFrame::scan_parquet(source, scan_args())
+            .and_then(|mut lf| lf.collect_schema())
+            .map_err(failed)
+    })
 }
 
 /// The names of a Parquet file's columns, from its footer.
@@ -161,10 +204,13 @@ impl ParquetRecords {
             None => Ok(false),
             Some(Err(message)) => Err(failure(&self.path, &message)),
             Some(Ok(df)) => {
-                self.cells = (self.names.iter())
-                    .map(|name| Cells::of(&df, name))
-                    .collect::<Result<_, _>>()
-                    .map_err(|message| failure(&self.path, &message))?;
+                let cells = || {
+                    (self.names.iter())
+                        .map(|name| Cells::of(&df, name))
+                        .collect::<Result<_, _>>()
+                        .map_err(|message| failure(&self.path, &message))
+                };
+                self.cells = contained(&self.path, cells)?;
                 self.height = df.height();
                 self.next_row = 0;
                 Ok(true)
@@ -363,6 +409,10 @@ struct Frames {
 
 impl Frames {
     fn start(path: &Path, options: &IngestOptions) -> Result<Frames, Located> {
+        contained(path, || Frames::start_uncontained(path, options))
+    }
+
+    fn start_uncontained(path: &Path, options: &IngestOptions) -> Result<Frames, Located> {
         let failed = |e: PolarsError| failure(path, &e.to_string());
         let queries = slices(path, options.parquet_slice_rows)?;
         // A rendezvous channel: the callback (on polars' blocking pool) waits
@@ -384,6 +434,8 @@ impl Frames {
         let worker = std::thread::Builder::new()
             .name("gardefou-parquet".to_string())
             .spawn(move || {
+                // Its panics come back through `join`, as the file's error.
+                let _quiet = Containment::start();
                 // One after the other: the frames stay in order.
                 for lf in queries {
                     lf.collect_with_engine(Engine::Streaming)?;
@@ -407,7 +459,7 @@ impl Frames {
         match worker.join() {
             Ok(Ok(())) => None,
             Ok(Err(e)) => Some(Err(e.to_string())),
-            Err(_) => Some(Err("the polars query stopped unexpectedly".to_string())),
+            Err(payload) => Some(Err(panics::message(payload.as_ref()))),
         }
     }
 }
@@ -416,6 +468,10 @@ impl Frames {
 /// maps the whole file while a query runs; a query per slice maps it anew and
 /// unmaps it when done, so the file's resident pages stay bounded by a slice's.
 fn slices(path: &Path, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
+    contained(path, || slices_uncontained(path, slice_rows))
+}
+
+fn slices_uncontained(path: &Path, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
     let failed = |e: PolarsError| failure(path, &e.to_string());
     let slice_rows = slice_rows.max(1);
     let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;

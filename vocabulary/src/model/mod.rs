@@ -12,6 +12,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub mod validity;
+
 use crate::error::{Located, Location};
 use crate::{Time, TimeUnit};
 
@@ -74,7 +76,8 @@ impl Model {
         Model::parse(&text, path)
     }
 
-    /// Parses the text of a `model.json` file; `path` names it in errors.
+    /// Parses the text of a `model.json` file and checks what it means (see
+    /// [`validity`]); `path` names it in errors.
     pub fn parse(text: &str, path: &std::path::Path) -> Result<Model, Located> {
         // Check the version first: a model from another schema fails on it, not
         // on whichever field changed.
@@ -102,11 +105,13 @@ impl Model {
                 ));
             }
         }
-        serde_json::from_str(text).map_err(|e| {
+        let model: Model = serde_json::from_str(text).map_err(|e| {
             let msg = e.to_string();
             let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
             Located::new(at(&e), msg)
-        })
+        })?;
+        validity::validate(&model).map_err(|why| Located::new(Location::new(path, 0, 0), why))?;
+        Ok(model)
     }
 }
 
