@@ -36,8 +36,11 @@ fn every_learned_fixture_is_valid() {
     assert!(seen >= 5, "{seen} fixtures");
 }
 
+/// What an edit is, how it is made, and what the message must say.
+type Edit = (&'static str, fn(&mut Value), &'static str);
+
 /// Each edit, and the end of the message it must give.
-fn edits() -> Vec<(&'static str, fn(&mut Value), &'static str)> {
+fn edits() -> Vec<Edit> {
     vec![
         (
             "guard bounds swapped",
