@@ -98,9 +98,45 @@ fn check_frame(path: &Path) -> Result<(), Located> {
     Ok(())
 }
 
+/// Checks the footer's byte ranges and counts, which polars' streaming reader
+/// uses unchecked: every row group and column chunk within the file, no
+/// negative count.
+fn check_footer(path: &Path) -> Result<(), Located> {
+    let size = open_file(path)?
+        .metadata()
+        .map_err(|e| failure(path, &e.to_string()))?
+        .len();
+    contained(path, || {
+        let mut reader = ParquetReader::new(open_file(path)?);
+        let footer = reader
+            .get_metadata()
+            .map_err(|e| failure(path, &e.to_string()))?;
+        let fail = |why: String| Err(failure(path, &format!("a damaged footer: {why}")));
+        for (k, group) in footer.row_groups.iter().enumerate() {
+            let range = group.full_byte_range();
+            if range.start > range.end || range.end > size {
+                return fail(format!(
+                    "row group {k} spans bytes {range:?} of a file of {size}"
+                ));
+            }
+            for chunk in group.parquet_columns() {
+                let range = chunk.byte_range();
+                let counts = chunk.num_values() >= 0 && chunk.compressed_size() >= 0;
+                if range.start > range.end || range.end > size || !counts {
+                    return fail(format!(
+                        "a column chunk of row group {k} spans bytes {range:?} of a file of {size}"
+                    ));
+                }
+            }
+        }
+        Ok(())
+    })
+}
+
 /// The schema of a Parquet file, from its footer.
 fn schema(path: &Path) -> Result<SchemaRef, Located> {
     check_frame(path)?;
+    check_footer(path)?;
     contained(path, || {
         let failed = |e: PolarsError| failure(path, &e.to_string());
         let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;

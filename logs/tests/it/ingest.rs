@@ -1032,3 +1032,62 @@ fn resident_kib() -> (u64, u64) {
     };
     (field("RssAnon:"), field("RssFile:"))
 }
+
+#[test]
+fn a_flipped_bit_in_a_parquet_footer_is_an_error_not_a_panic() {
+    // Every bit of a small archive's footer, one at a time: the schema, row
+    // groups and statistics that polars trusts. Each flip reads,
+    // or fails in one printable line; polars' own panics (an Int128 column
+    // type from one flip) are the file's error.
+    let (plant, sink) = simulated();
+    let end = sink.events.last().map_or(sink.start, |e| e.t);
+    let log = EventLog {
+        start: sink.start,
+        initial: sink.initial.clone(),
+        events: sink.events.clone(),
+        format: TimeFormat::Numeric(TimeUnit::Ms),
+        end: None,
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let good = dir.path().join("good.parquet");
+    write_intervals_parquet(&log, &plant.signals, &good, end).expect("archive");
+    let bytes = std::fs::read(&good).expect("read");
+    let flipped = dir.path().join("flipped.parquet");
+    // The footer, its length and the magic bytes that end the file.
+    let tail: [u8; 4] = bytes[bytes.len() - 8..bytes.len() - 4]
+        .try_into()
+        .expect("4 bytes");
+    let footer = u32::from_le_bytes(tail) as usize + 8;
+    let (mut read, mut refused) = (0, 0);
+    for pos in bytes.len() - footer..bytes.len() {
+        for bit in 0..8 {
+            let mut copy = bytes.clone();
+            copy[pos] ^= 1 << bit;
+            std::fs::write(&flipped, &copy).expect("write");
+            let outcome = std::panic::catch_unwind(|| read_all(&flipped, &plant));
+            match outcome {
+                Ok(Ok(())) => read += 1,
+                Ok(Err(e)) => {
+                    let text = e.to_string();
+                    assert!(
+                        !text.chars().any(char::is_control),
+                        "byte {pos} bit {bit}: {text:?}"
+                    );
+                    refused += 1;
+                }
+                Err(_) => panic!("byte {pos} bit {bit}: a panic escaped"),
+            }
+        }
+    }
+    assert_eq!(read + refused, 8 * footer);
+    assert!(refused > 0, "no flip refused");
+}
+
+/// Opens and reads the whole log.
+fn read_all(path: &Path, plant: &Plant) -> Result<(), Located> {
+    let stream = open(path, plant, &options(BATCH))?;
+    for batch in stream.batches {
+        batch?;
+    }
+    Ok(())
+}
