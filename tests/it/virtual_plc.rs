@@ -371,3 +371,45 @@ fn virtual_plc_stops_cleanly_on_sigterm_and_sigint() {
         );
     }
 }
+
+#[test]
+fn a_malformed_request_ends_its_connection_in_one_line_and_others_are_served() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = learn_constraint_model(dir.path());
+    let plc = start_virtual_plc(&model, &["--duration", "1h"]);
+    // Write Multiple Coils: 100 coils, a byte count of 2 and 2 bytes.
+    let request = [0, 7, 0, 0, 0, 9, 1, 0x0F, 0, 0, 0, 100, 2, 0xFF, 0x03];
+    let mut client = TcpStream::connect(plc.addr).expect("connects");
+    client
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .expect("timeout");
+    client.write_all(&request).expect("sends");
+    let mut reply = Vec::new();
+    let read = client.read_to_end(&mut reply);
+    assert!(read.is_ok() && reply.is_empty(), "{read:?} {reply:?}");
+    // Another client is served.
+    let mut other = TcpStream::connect(plc.addr).expect("connects");
+    other
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .expect("timeout");
+    other
+        .write_all(&[0, 8, 0, 0, 0, 6, 1, 0x01, 0, 0, 0, 7])
+        .expect("sends");
+    let mut answer = [0u8; 10];
+    other
+        .read_exact(&mut answer)
+        .expect("a reply to Read Coils");
+    assert_eq!(&answer[..2], &[0, 8]);
+    ok(Command::new("kill")
+        .args(["-TERM", &plc.child.id().to_string()])
+        .output()
+        .expect("kill runs"));
+    let (status, _, stderr) = plc.finish();
+    assert!(status.success(), "{stderr}");
+    let dropped: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.contains("malformed request"))
+        .collect();
+    assert_eq!(dropped.len(), 1, "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}

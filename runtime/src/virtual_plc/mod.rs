@@ -19,6 +19,8 @@
 //! a scan; scans are due at absolute instants (origin + k · period / speed), so
 //! a late scan does not shift the ones after it.
 
+mod requests;
+
 use std::future::{Ready, ready};
 use std::io;
 use std::net::{SocketAddr, ToSocketAddrs};
@@ -203,7 +205,7 @@ async fn serve(listener: TcpListener, image: Arc<Mutex<Image>>) {
         async move {
             // Requests and answers are a few bytes each: send them at once.
             let _ = stream.set_nodelay(true);
-            io::Result::Ok(Some((service, stream)))
+            io::Result::Ok(Some((service, requests::Checked::new(stream))))
         }
     };
     let on_error = |e: io::Error| eprintln!("virtual PLC: dropped a client: {e}");
