@@ -207,14 +207,7 @@ fn st_cmd(args: StArgs) -> Result<(), Failure> {
     let model = match &args.model {
         Some(path) => {
             let model = Model::from_path(path).map_err(Failure::bad)?;
-            if model.plant != plant.name {
-                return Err(Failure::bad(format!(
-                    "{}: the model was learned for plant '{}', not '{}'",
-                    path.display(),
-                    model.plant,
-                    plant.name
-                )));
-            }
+            (model.fits(&plant)).map_err(|e| Failure::bad(format!("{}: {e}", path.display())))?;
             Some(model)
         }
         None if coupling != Coupling::None => {

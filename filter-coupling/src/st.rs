@@ -1642,6 +1642,7 @@ expr = "C6 & !A4"
         Model {
             version: 1,
             plant: "table".into(),
+            plant_digest: None,
             time_unit: diagnoser::TimeUnit::Ms,
             scan_period: 10.0,
             learned_from: Provenance {

@@ -193,6 +193,7 @@ impl<'p> Learner<'p> {
         Model {
             version: MODEL_VERSION,
             plant: self.plant.name.clone(),
+            plant_digest: Some(self.plant.learning_digest()),
             time_unit: unit,
             scan_period: self.plant.scan_period as f64 / scale,
             learned_from: Provenance {

@@ -407,3 +407,33 @@ fn a_log_through_a_fifo_reads_as_the_file_does() {
         );
     }
 }
+
+#[test]
+fn a_model_learned_with_another_plant_file_is_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let text = fs::read_to_string(plant()).expect("plant file");
+    let log = data("sorting/F4/events.csv");
+    let run = |edited: String, name: &str| {
+        let path = dir.path().join(name);
+        fs::write(&path, edited).expect("writes");
+        let plant = path.to_str().expect("path").to_string();
+        gardefou(&["diagnose", "--plant", &plant, "--model", model(), &log])
+    };
+    // A description is not what the model learned: still its plant.
+    let described = text.replace("turntable at loading position", "table at loading");
+    let o = run(described, "described.toml");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Two signals declared in the other order: not the plant it learned.
+    let c4 = "C4 = { kind = \"sensor\", description = \"turntable at loading position\" }\n";
+    let c5 = "C5 = { kind = \"sensor\", description = \"turntable at unloading position\" }\n";
+    let swapped = text.replace(&format!("{c4}{c5}"), &format!("{c5}{c4}"));
+    assert_ne!(swapped, text);
+    let o = run(swapped, "swapped.toml");
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("learned with another plant file 'sorting'"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+}

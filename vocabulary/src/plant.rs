@@ -214,6 +214,35 @@ pub struct Constraint {
 pub type PlantError = Located;
 
 impl Plant {
+    /// A digest of what a learned model depends on: the plant's name, its
+    /// signals (names and kinds, in order) and its parts (signals and
+    /// inputs). Descriptions, faults, partitions, constraints and observers
+    /// are left out: they may change without learning again.
+    pub fn learning_digest(&self) -> String {
+        let mut text = format!("plant {}\n", self.name);
+        for (_, s) in self.signals.iter() {
+            text.push_str(&format!("signal {} {:?}\n", s.name, s.kind));
+        }
+        let names = |ids: &[SignalId]| {
+            (ids.iter().map(|&id| self.signals.name(id)))
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        for p in &self.parts {
+            let inputs = p.inputs.as_deref().map_or("learned".to_string(), names);
+            text.push_str(&format!(
+                "part {} actuators {} sensors {} inputs {inputs}\n",
+                p.name,
+                names(&p.actuators),
+                names(&p.sensors)
+            ));
+        }
+        // FNV-1a: stable across builds and platforms, unlike std's hasher.
+        let hash = text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+        });
+        format!("fnv1a64:{hash:016x}")
+    }
     /// Reads and checks a plant file.
     pub fn from_path(path: &Path) -> Result<Plant, PlantError> {
         let text = std::fs::read_to_string(path).map_err(|e| {

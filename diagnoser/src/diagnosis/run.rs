@@ -140,12 +140,7 @@ pub struct PlantDiagnoser {
 impl PlantDiagnoser {
     /// Builds the diagnosers of every part of `plant` that `model` has learned.
     pub fn new(plant: &Plant, model: &Model, options: &DiagnoserOptions) -> Result<Self, String> {
-        if model.plant != plant.name {
-            return Err(format!(
-                "the model was learned for plant '{}', not '{}'",
-                model.plant, plant.name
-            ));
-        }
+        model.fits(plant)?;
         let mut engines = Vec::new();
         for part in &plant.parts {
             let Some(pm) = model.parts.iter().find(|p| p.name == part.name) else {

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 pub mod validity;
 
 use crate::error::{Located, Location};
-use crate::{Time, TimeUnit};
+use crate::{Plant, Time, TimeUnit};
 
 /// Version of the `model.json` schema written by this build.
 pub const MODEL_VERSION: u32 = 1;
@@ -27,6 +27,10 @@ pub struct Model {
     pub version: u32,
     /// Plant name.
     pub plant: String,
+    /// [`Plant::learning_digest`] of the plant file it was learned with;
+    /// absent from models learned before it was written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plant_digest: Option<String>,
     /// Unit of every time in this model.
     pub time_unit: TimeUnit,
     /// PLC scan period, in `time_unit`.
@@ -37,6 +41,26 @@ pub struct Model {
     pub settings: LearnSettings,
     /// One model per part.
     pub parts: Vec<PartModel>,
+}
+
+impl Model {
+    /// Whether this model was learned for `plant` as it is: the same name,
+    /// and the same signals and parts (the digest, when the model has one).
+    pub fn fits(&self, plant: &Plant) -> Result<(), String> {
+        if self.plant != plant.name {
+            return Err(format!(
+                "the model was learned for plant '{}', not '{}'",
+                self.plant, plant.name
+            ));
+        }
+        match &self.plant_digest {
+            Some(digest) if *digest != plant.learning_digest() => Err(format!(
+                "the model was learned with another plant file '{}': its signals or parts differ (learn the model again)",
+                plant.name
+            )),
+            _ => Ok(()),
+        }
+    }
 }
 
 /// The logs a model was learned from.
