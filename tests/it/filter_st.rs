@@ -15,6 +15,7 @@ use crate::st;
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::process::Command;
 use std::sync::OnceLock;
 
 use datasets::inject::{FaultSpec, Injection};
@@ -796,4 +797,69 @@ fn command_line_prints_the_function_block_and_rejects_bad_input() {
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("learned for plant 'sorting'"), "{err}");
+}
+
+/// An independent IEC 61131-3 parser (blark, TwinCAT's dialect) reads every
+/// variant the command line writes: both plants, both modes, every coupling.
+#[test]
+fn every_function_block_variant_parses_with_an_independent_parser() {
+    let python = std::env::var("GARDEFOU_PYTHON").unwrap_or_else(|_| "python3".into());
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cylinders_plant = path("datasets/data/cylinders/normal/plant.toml");
+    let cylinders_model = dir.path().join("cylinders.json");
+    let learned = gardefou(&[
+        "learn",
+        "--quiet",
+        "--plant",
+        &cylinders_plant,
+        "-o",
+        cylinders_model.to_str().expect("path"),
+        &path("datasets/data/cylinders/normal/events.csv"),
+    ]);
+    assert!(
+        learned.status.success(),
+        "{}",
+        String::from_utf8_lossy(&learned.stderr)
+    );
+    let plants = [
+        (
+            path("datasets/plants/sorting.toml"),
+            path("diagnoser/tests/fixtures/diagnosis/sorting-model.json"),
+        ),
+        (
+            cylinders_plant.clone(),
+            cylinders_model.display().to_string(),
+        ),
+    ];
+    let mut parsed = 0;
+    for (plant, model) in &plants {
+        for mode in [None, Some("--control")] {
+            for coupling in ["none", "def", "def+suspect"] {
+                let mut args = vec!["filter", "st", "--plant", plant, "--model", model];
+                args.extend(["--coupling", coupling]);
+                args.extend(mode);
+                let o = gardefou(&args);
+                assert!(
+                    o.status.success(),
+                    "{args:?}: {}",
+                    String::from_utf8_lossy(&o.stderr)
+                );
+                let file = dir.path().join(format!("fb{parsed}.st"));
+                std::fs::write(&file, &o.stdout).expect("writes");
+                let blark = Command::new(&python)
+                    .args(["-m", "blark", "parse"])
+                    .arg(&file)
+                    .output()
+                    .expect("runs python");
+                assert!(
+                    blark.status.success(),
+                    "{args:?}: blark: {}{}",
+                    String::from_utf8_lossy(&blark.stdout),
+                    String::from_utf8_lossy(&blark.stderr)
+                );
+                parsed += 1;
+            }
+        }
+    }
+    assert_eq!(parsed, 12);
 }
