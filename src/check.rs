@@ -47,12 +47,21 @@ pub struct CheckArgs {
     /// The libFAUDES failure-type map that goes with `--gen`.
     #[arg(long, value_name = "FILE")]
     failures: Option<PathBuf>,
+    /// With `--gen`: the largest verifier explored (its states and
+    /// transitions, in total) before giving up. About 50 bytes each.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 40_000_000,
+        requires = "generator"
+    )]
+    max_states: usize,
 }
 
 /// Runs `gardefou check`.
 pub fn run(args: CheckArgs) -> Result<(), Failure> {
     if let (Some(gen_path), Some(map)) = (&args.generator, &args.failures) {
-        return faudes_check(gen_path, map, args.json);
+        return faudes_check(gen_path, map, args.json, args.max_states);
     }
     let (Some(plant_path), Some(model_path)) = (&args.plant, &args.model) else {
         return Err(Failure::bad(
@@ -352,14 +361,26 @@ fn waiting_sentence(label: &str, w: &Waiting) -> String {
     }
 }
 
-fn faudes_check(gen_path: &PathBuf, map: &PathBuf, json: bool) -> Result<(), Failure> {
+fn faudes_check(
+    gen_path: &PathBuf,
+    map: &PathBuf,
+    json: bool,
+    budget: usize,
+) -> Result<(), Failure> {
     let read = |p: &PathBuf| {
         fs::read_to_string(p)
             .map_err(|e| Failure::bad(format!("{}: cannot read: {e}", p.display())))
     };
     let g = faudes::parse_generator(&read(gen_path)?, gen_path).map_err(Failure::bad)?;
     let f = faudes::parse_failure_types(&read(map)?, map).map_err(Failure::bad)?;
-    let result = faudes::event_diagnosability(&g, &f);
+    let result = faudes::event_diagnosability_within(&g, &f, budget).map_err(|big| {
+        Failure::bad(format!(
+            "{}: the verifier of failure type '{}' grew past {budget} states and transitions (--max-states) with no answer yet: the generator's {} states are too many to check as one; check its components",
+            gen_path.display(),
+            big.failure_type,
+            g.states.len()
+        ))
+    })?;
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if json {

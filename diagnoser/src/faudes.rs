@@ -1148,25 +1148,48 @@ fn read_event_set(c: &mut Cursor, label: &str) -> Result<Vec<String>, Located> {
 /// generator has no run and every failure type is diagnosable. Transitions naming
 /// states or events outside `g`'s vectors are ignored.
 pub fn event_diagnosability(g: &Generator, f: &FailureTypes) -> EventDiagnosability {
+    match event_diagnosability_within(g, f, usize::MAX) {
+        Ok(result) => result,
+        Err(too_large) => unreachable!("no verifier reaches usize::MAX: {too_large:?}"),
+    }
+}
+
+/// [`event_diagnosability`], giving up once a failure type's verifier holds
+/// more than `budget` nodes and edges: its memory grows with them, and with
+/// the product of a generator's components.
+pub fn event_diagnosability_within(
+    g: &Generator,
+    f: &FailureTypes,
+    budget: usize,
+) -> Result<EventDiagnosability, TooLarge> {
     let sys = System::new(g);
     let assumptions = assumptions(g, &sys, f);
-    let types: Vec<TypeVerdict> = f
-        .types
-        .iter()
-        .map(|(name, failures)| {
-            let counterexample = verify(g, &sys, failures);
-            TypeVerdict {
-                failure_type: name.clone(),
-                diagnosable: counterexample.is_none(),
-                counterexample,
-            }
-        })
-        .collect();
-    EventDiagnosability {
+    let mut types: Vec<TypeVerdict> = Vec::new();
+    for (name, failures) in &f.types {
+        let counterexample = verify(g, &sys, failures, budget).map_err(|reached| TooLarge {
+            failure_type: name.clone(),
+            reached,
+        })?;
+        types.push(TypeVerdict {
+            failure_type: name.clone(),
+            diagnosable: counterexample.is_none(),
+            counterexample,
+        });
+    }
+    Ok(EventDiagnosability {
         diagnosable: assumptions.is_empty() && types.iter().all(|t| t.diagnosable),
         assumptions,
         types,
-    }
+    })
+}
+
+/// A verifier that outgrew its budget.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TooLarge {
+    /// The failure type whose verifier it was.
+    pub failure_type: String,
+    /// Its nodes and edges when it was given up.
+    pub reached: usize,
 }
 
 /// The generator as adjacency lists, keeping only well-formed transitions.
@@ -1280,23 +1303,18 @@ struct ObsEdge {
     event: usize,
     /// The node reached.
     to: usize,
-    /// The full run: unobservable events, then `event`.
-    path: Vec<usize>,
 }
 
-/// Looks for an indeterminate cycle for the failure type with events `failures`;
-/// `None` when the type is diagnosable.
-fn verify(g: &Generator, sys: &System, failures: &[String]) -> Option<Counterexample> {
-    let failure: Vec<bool> = g.events.iter().map(|e| failures.contains(e)).collect();
-    // Only unobservable failure events set the label (as in libFAUDES): without
-    // any, no run is faulty.
-    if !(0..failure.len()).any(|e| failure[e] && !sys.observable[e]) {
-        return None;
-    }
-
-    // 1. The observation automaton (libFAUDES's G_o): a node is a state reached
-    //    by an observable event (or initial) with the label "a failure of the type
-    //    has occurred"; an edge is unobservable events then one observable event.
+/// The observation automaton (libFAUDES's G_o): a node is a state reached by
+/// an observable event (or initial) with the label "a failure of the type has
+/// occurred"; an edge is unobservable events then one observable event. Its
+/// nodes, their edges and the initial nodes.
+fn observation_automaton(
+    g: &Generator,
+    sys: &System,
+    failure: &[bool],
+    grow: &mut impl FnMut(usize) -> Result<(), usize>,
+) -> Result<ObservationAutomaton, usize> {
     let mut nodes: Vec<(usize, bool)> = Vec::new();
     let mut node_of: HashMap<(usize, bool), usize> = HashMap::new();
     let mut edges: Vec<Vec<ObsEdge>> = Vec::new();
@@ -1310,22 +1328,54 @@ fn verify(g: &Generator, sys: &System, failures: &[String]) -> Option<Counterexa
     }
     let mut next = 0;
     while next < nodes.len() {
-        let moves = observation_moves(sys, &failure, nodes[next]);
+        let moves = observation_moves(sys, failure, nodes[next]);
         let mut out = Vec::with_capacity(moves.len());
-        for (event, target, path) in moves {
+        // The runs behind the moves are not kept: the counterexample's few
+        // are found again (`run_of`), and the rest would hold most of the memory.
+        for (event, target, _run) in moves {
             let to = *node_of.entry(target).or_insert_with(|| {
                 nodes.push(target);
                 nodes.len() - 1
             });
-            out.push(ObsEdge { event, to, path });
+            out.push(ObsEdge { event, to });
         }
         out.sort_by_key(|edge| edge.event);
+        grow(1 + out.len())?;
         edges.push(out);
         next += 1;
     }
+    Ok((nodes, edges, starts))
+}
+
+/// Nodes `(state, failed)`, each one's edges, and the initial nodes.
+type ObservationAutomaton = (Vec<(usize, bool)>, Vec<Vec<ObsEdge>>, Vec<usize>);
+
+/// A counterexample to the diagnosability of the failure type made of
+/// `failures`, if there is one; `Err` with the verifier's size once it holds
+/// more than `budget` nodes and edges.
+fn verify(
+    g: &Generator,
+    sys: &System,
+    failures: &[String],
+    budget: usize,
+) -> Result<Option<Counterexample>, usize> {
+    let failure: Vec<bool> = g.events.iter().map(|e| failures.contains(e)).collect();
+    // Only unobservable failure events set the label (as in libFAUDES): without
+    // any, no run is faulty.
+    if !(0..failure.len()).any(|e| failure[e] && !sys.observable[e]) {
+        return Ok(None);
+    }
+    let mut size = 0usize;
+    let mut grow = |by: usize| {
+        size = size.saturating_add(by);
+        if size > budget { Err(size) } else { Ok(()) }
+    };
+
+    let (nodes, edges, starts) = observation_automaton(g, sys, &failure, &mut grow)?;
 
     // 2. Its twin plant (libFAUDES's G_d = G_o || G_o): pairs of nodes moving on
-    //    the same observable event. Twin edges remember which edges they pair.
+    //    the same observable event, explored up to the pairs where both runs
+    //    have failed. Twin edges remember which edges they pair.
     let mut pairs: Vec<(usize, usize)> = Vec::new();
     let mut pair_of: HashMap<(usize, usize), usize> = HashMap::new();
     let mut twin: Vec<Vec<(usize, usize, usize)>> = Vec::new();
@@ -1341,6 +1391,15 @@ fn verify(g: &Generator, sys: &System, failures: &[String]) -> Option<Counterexa
     while next < pairs.len() {
         let (a, b) = pairs[next];
         let mut out = Vec::new();
+        // Labels only go from "no failure yet" to "failed": from a pair where
+        // both runs have failed, every pair reached has too, and none of them
+        // lies on an indeterminate cycle. Left unexplored, they cost nothing;
+        // the other pairs keep their breadth-first order.
+        if nodes[a].1 && nodes[b].1 {
+            twin.push(out);
+            next += 1;
+            continue;
+        }
         let (ea, eb) = (&edges[a], &edges[b]);
         let (mut i, mut j) = (0, 0);
         while i < ea.len() && j < eb.len() {
@@ -1373,6 +1432,7 @@ fn verify(g: &Generator, sys: &System, failures: &[String]) -> Option<Counterexa
                 j = j_end;
             }
         }
+        grow(1 + out.len())?;
         twin.push(out);
         next += 1;
     }
@@ -1384,7 +1444,9 @@ fn verify(g: &Generator, sys: &System, failures: &[String]) -> Option<Counterexa
         .map(|&(a, b)| nodes[a].1 != nodes[b].1)
         .collect();
     let component = cyclic_components(&twin, &uncertain);
-    let entry = (0..pairs.len()).find(|&p| component[p].is_some())?;
+    let Some(entry) = (0..pairs.len()).find(|&p| component[p].is_some()) else {
+        return Ok(None);
+    };
 
     let mut stem = Vec::new();
     let mut p = entry;
@@ -1407,16 +1469,34 @@ fn verify(g: &Generator, sys: &System, failures: &[String]) -> Option<Counterexa
         } else {
             (edge_b, edge_a)
         };
-        faulty.extend(ef.path.iter().map(|&e| g.events[e].clone()));
-        normal.extend(en.path.iter().map(|&e| g.events[e].clone()));
+        let (from_f, from_n) = if faulty_first { (a, b) } else { (b, a) };
+        let run = |from: usize, edge: &ObsEdge| run_of(sys, &failure, &nodes, from, edge);
+        faulty.extend(run(from_f, ef).iter().map(|&e| g.events[e].clone()));
+        normal.extend(run(from_n, en).iter().map(|&e| g.events[e].clone()));
         observed.push(g.events[ef.event].clone());
     }
-    Some(Counterexample {
+    Ok(Some(Counterexample {
         faulty,
         normal,
         observed,
         cycle_from: stem.len(),
-    })
+    }))
+}
+
+/// The run behind the observation edge `edge` out of node `from`: the same
+/// one `observation_moves` gave when the edge was made.
+fn run_of(
+    sys: &System,
+    failure: &[bool],
+    nodes: &[(usize, bool)],
+    from: usize,
+    edge: &ObsEdge,
+) -> Vec<usize> {
+    let moves = observation_moves(sys, failure, nodes[from]);
+    (moves.into_iter())
+        .find(|(event, target, _)| *event == edge.event && *target == nodes[edge.to])
+        .map(|(_, _, run)| run)
+        .unwrap_or_default()
 }
 
 /// How a (state, failed) pair was first reached: the pair before and the event.

@@ -245,6 +245,25 @@ fn check_reads_libfaudes_generators() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("F1: not diagnosable"), "{text}");
+    // A verifier larger than allowed gives up in one line.
+    let o = gardefou(&[
+        "check",
+        "--gen",
+        fx.join("diag_system_4.gen").to_str().expect("utf-8"),
+        "--failures",
+        fx.join("diag_failure_typemap_4.txt")
+            .to_str()
+            .expect("utf-8"),
+        "--max-states",
+        "3",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("grew past 3 states and transitions (--max-states)"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
 }
 
 #[test]

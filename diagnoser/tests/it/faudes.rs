@@ -13,7 +13,8 @@ use std::path::{Path, PathBuf};
 
 use diagnoser::faudes::{
     AssumptionViolation, Counterexample, EventDiagnosability, FailureTypes, Generator,
-    event_diagnosability, parse_failure_types, parse_generator, render,
+    event_diagnosability, event_diagnosability_within, parse_failure_types, parse_generator,
+    render,
 };
 use proptest::prelude::*;
 
@@ -766,4 +767,76 @@ proptest! {
         let cut = cut.min(map.len());
         let _ = parse_failure_types(&format!("{}{junk}{}", &map[..cut], &map[cut..]), Path::new("m.txt"));
     }
+}
+
+/// `n` turntables, each of which may lose its C5 sensor, as one generator (the
+/// product of independent components, as `scripts/turntable-product.py`
+/// writes it) and its failure-type map.
+fn turntables(n: u32) -> (String, String) {
+    // (state, event, next) of one turntable; 4-7 after the failure `f`.
+    const ONE: [(u32, &str, u32); 9] = [
+        (0, "a", 1),
+        (1, "c5", 2),
+        (2, "r", 3),
+        (3, "c4", 0),
+        (0, "f", 4),
+        (4, "a", 5),
+        (5, "m", 6),
+        (6, "r", 7),
+        (7, "c4", 4),
+    ];
+    let mut text = String::from("<Generator>\n\"product\"\n<Alphabet>\n");
+    for i in 0..n {
+        for e in ["a", "c5", "r", "c4"] {
+            text.push_str(&format!("\"{e}_{i}\"\n"));
+        }
+        text.push_str(&format!("\"f_{i}\" +o+\n\"m_{i}\" +o+\n"));
+    }
+    let states = 8u32.pow(n);
+    text.push_str("</Alphabet>\n<States>\n");
+    for s in 0..states {
+        text.push_str(&format!("{}\n", s + 1));
+    }
+    text.push_str("</States>\n<TransRel>\n");
+    for s in 0..states {
+        for i in 0..n {
+            let digit = s / 8u32.pow(i) % 8;
+            for &(x, e, y) in ONE.iter().filter(|t| t.0 == digit) {
+                let t = s - x * 8u32.pow(i) + y * 8u32.pow(i);
+                text.push_str(&format!("{} \"{e}_{i}\" {}\n", s + 1, t + 1));
+            }
+        }
+    }
+    text.push_str("</TransRel>\n<InitStates>\n1\n</InitStates>\n<MarkedStates>\n</MarkedStates>\n</Generator>\n");
+    let failures: String = (0..n).map(|i| format!("\"f_{i}\"\n")).collect();
+    let map = format!(
+        "<FailureTypes>\n\"F\"\n<FailureEvents>\n{failures}</FailureEvents>\n</FailureTypes>\n"
+    );
+    (text, map)
+}
+
+#[test]
+fn a_product_of_turntables_is_answered_and_a_budget_gives_up_in_time() {
+    // One turntable: a lost C5 shows when the plate comes back unseen.
+    let (one, map) = turntables(1);
+    let (g, f) = (
+        parse_generator(&one, Path::new("one.gen")).expect("generator"),
+        parse_failure_types(&map, Path::new("f.txt")).expect("map"),
+    );
+    assert!(event_diagnosability(&g, &f).diagnosable);
+    // Three: the others may run for ever while one waits for its C5.
+    let (three, map) = turntables(3);
+    let (g, f) = (
+        parse_generator(&three, Path::new("three.gen")).expect("generator"),
+        parse_failure_types(&map, Path::new("f.txt")).expect("map"),
+    );
+    let result = event_diagnosability(&g, &f);
+    assert!(!result.diagnosable);
+    let shown = render(&result);
+    assert!(shown.contains("faulty:   f_0 a_0 ("), "{shown}");
+    let within = event_diagnosability_within(&g, &f, 10_000_000).expect("within budget");
+    assert_eq!(render(&within), shown);
+    let too_large = event_diagnosability_within(&g, &f, 1_000).expect_err("over budget");
+    assert_eq!(too_large.failure_type, "F");
+    assert!(too_large.reached > 1_000);
 }
