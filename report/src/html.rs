@@ -203,8 +203,7 @@ fn scripts(data: &Value) -> Markup {
     let text = data.to_string().replace('<', "\\u003c");
     html! {
         script type="application/json" id="gardefou-data" {
-            // Safe as it is: it holds no `<` (above), and a script's text is
-            // read unescaped, so escaping would corrupt the JSON.
+            // Safe as it is: no `<` in it (above); a script's text is never unescaped.
             (PreEscaped(text))
         }
         "\n"
@@ -1209,8 +1208,7 @@ fn models_section(p: &Page<'_>) -> Markup {
                     @for (what, pic) in drawn {
                         @if let Some(pic) = pic {
                             figure class="model-picture" {
-                                // Safe as it is: `pictures` writes the SVG, Graphviz's or
-                                // its own, with every text and attribute XML-escaped.
+                                // Safe as it is: SVG whose text `pictures` or Graphviz escaped.
                                 (PreEscaped(&pic.svg))
                                 figcaption { (what) " of " (pics.part) " (" (pic.by) ")" }
                             }
