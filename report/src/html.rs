@@ -1,25 +1,32 @@
 //! The report page: summary, timelines' data, explanations and pictures.
 //!
-//! The page is written as one string. Timelines are drawn in the browser from
-//! the embedded data (`report.js`), so that a day-long log zooms from the whole
-//! day down to single scans without the file holding one picture per zoom.
+//! The page is written through maud's `html!` templates, which escape every
+//! value they interpolate: text from the plant file, the model, the logs or
+//! the diagnosers is shown as text and never becomes markup. Only markup the
+//! report builds itself goes in as it is (`PreEscaped`), each time with why it
+//! is safe. maud writes no whitespace between elements; the `"\n"` literals
+//! keep the page's source in readable lines.
+//!
+//! Timelines are drawn in the browser from the embedded data (`report.js`), so
+//! that a day-long log zooms from the whole day down to single scans without
+//! the file holding one picture per zoom.
 
-use std::fmt::Write;
 use std::path::Path;
 
 use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::{Model, ModelClock, PartModel};
 use diagnoser::plant::{Constraint, Part};
-use diagnoser::{Plant, SignalKind, Time, TimeFormat};
+use diagnoser::{Plant, SignalId, SignalKind, Time, TimeFormat};
 use filter_coupling::filter::Coupling;
+use maud::{DOCTYPE, Markup, PreEscaped, html};
 use serde_json::{Value, json};
 
-use super::collect::{Change, Detection, LogReplay, Trip, TripDetail};
+use super::collect::{Change, Detection, EXPLAINED_TRIPS, LogReplay, Rewrite, Trip, TripDetail};
 use super::pictures::{self, Layout, Picture};
 use super::words::{
-    absolute, description, duration, edge, escape, fault_meaning, filter_action, highlight,
-    literal_words, offset,
+    absolute, description, duration, edge, fault_meaning, filter_action, highlight, literal_words,
+    offset,
 };
 
 const CSS: &str = include_str!("assets/report.css");
@@ -109,63 +116,101 @@ pub struct Page<'a> {
 
 /// The whole page.
 pub fn page(p: &Page<'_>) -> String {
-    let mut h = String::with_capacity(1 << 20);
     let title = format!("Fault review: {}", p.plant.name);
-    let _ = write!(
-        h,
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
-         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
-         <meta name=\"generator\" content=\"gardefou {}\">\n<title>{}</title>\n<style>\n{CSS}\n</style>\n</head>\n<body>\n",
-        env!("CARGO_PKG_VERSION"),
-        escape(&title)
-    );
-    let _ = writeln!(
-        h,
-        "<header class=\"report-header\"><h1>{}</h1>\n<p class=\"meta\">Plant file <code>{}</code>; model <code>{}</code> (learned from {} over {}); the safety filter replayed with coupling <code>{}</code>{}.</p>",
-        escape(&title),
-        escape(&p.plant_path.display().to_string()),
-        escape(&p.model_path.display().to_string()),
-        escape(&p.model.learned_from.logs.join(", ")),
-        duration((p.model.learned_from.duration * p.model.time_unit.nanos() as f64) as Time),
-        p.coupling.name(),
-        match p.coupling {
-            Coupling::None => ": constraints read the sensors as they are",
-            Coupling::Flags => ": a def_ flag switches a failed sensor to its temporal estimate",
-            Coupling::FlagsAndSuspects =>
-                ": def_ and suspect_ flags switch sensors to their temporal estimates",
-        }
-    );
-    if p.replays.len() > 1 {
-        h.push_str("<nav class=\"logs\"><ul>");
-        for (i, r) in p.replays.iter().enumerate() {
-            let _ = write!(
-                h,
-                "<li><a href=\"#log-{i}\">{}</a> — {}</li>",
-                escape(&r.name),
-                escape(&plant_line(r))
-            );
-        }
-        h.push_str("</ul></nav>");
-    }
-    h.push_str("</header>\n<main>\n");
-    let mut data_logs = Vec::new();
-    for (i, r) in p.replays.iter().enumerate() {
-        data_logs.push(log_section(&mut h, p, i, r));
-    }
-    // The timelines are drawn before the browser reads the (large, folded)
-    // model pictures, so that the page is usable as soon as possible.
+    let (logs, data_logs): (Vec<Markup>, Vec<Value>) = p
+        .replays
+        .iter()
+        .enumerate()
+        .map(|(i, r)| log_section(p, i, r))
+        .unzip();
     let data = json!({ "plant": p.plant.name, "logs": data_logs });
+    html! {
+        (DOCTYPE) "\n"
+        html lang="en" {
+            "\n"
+            head {
+                "\n"
+                meta charset="utf-8"; "\n"
+                meta name="viewport" content="width=device-width, initial-scale=1"; "\n"
+                meta name="generator" content={ "gardefou " (env!("CARGO_PKG_VERSION")) }; "\n"
+                title { (title) } "\n"
+                // Safe as it is: the page's own stylesheet, from the source tree.
+                style { "\n" (PreEscaped(CSS)) "\n" } "\n"
+            }
+            "\n"
+            body {
+                "\n"
+                (page_header(p, &title)) "\n"
+                main {
+                    "\n"
+                    @for log in &logs { (log) }
+                    // The timelines are drawn before the browser reads the
+                    // (large, folded) model pictures, so that the page is
+                    // usable as soon as possible.
+                    (scripts(&data))
+                    (models_section(p))
+                }
+                "\n"
+            }
+            "\n"
+        }
+        "\n"
+    }
+    .into_string()
+}
+
+/// The page's heading: the plant, the model and the coupling replayed, and a
+/// link to each log when there are several.
+fn page_header(p: &Page<'_>, title: &str) -> Markup {
+    let learned = &p.model.learned_from;
+    let learned_over = (learned.duration * p.model.time_unit.nanos() as f64) as Time;
+    let coupling = match p.coupling {
+        Coupling::None => ": constraints read the sensors as they are",
+        Coupling::Flags => ": a def_ flag switches a failed sensor to its temporal estimate",
+        Coupling::FlagsAndSuspects => {
+            ": def_ and suspect_ flags switch sensors to their temporal estimates"
+        }
+    };
+    html! {
+        header class="report-header" {
+            h1 { (title) } "\n"
+            p class="meta" {
+                "Plant file " code { (p.plant_path.display()) }
+                "; model " code { (p.model_path.display()) }
+                " (learned from " (learned.logs.join(", ")) " over " (duration(learned_over)) ")"
+                "; the safety filter replayed with coupling " code { (p.coupling.name()) }
+                (coupling) "."
+            }
+            "\n"
+            @if p.replays.len() > 1 {
+                nav class="logs" {
+                    ul {
+                        @for (i, r) in p.replays.iter().enumerate() {
+                            li { a href={ "#log-" (i) } { (r.name) } " — " (plant_line(r)) }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The timeline data, and the page's script that draws the timelines from it.
+fn scripts(data: &Value) -> Markup {
     // Inside a script element, `</script>` would end it and `<!--` would make
     // the browser look for its end elsewhere: JSON may write every `<` as
     // `\u003c` (it only occurs inside strings), and then neither can occur.
     let text = data.to_string().replace('<', "\\u003c");
-    let _ = writeln!(
-        h,
-        "<script type=\"application/json\" id=\"gardefou-data\">{text}</script>\n<script>\n{JS}\n</script>"
-    );
-    models_section(&mut h, p);
-    h.push_str("</main>\n</body>\n</html>\n");
-    h
+    html! {
+        script type="application/json" id="gardefou-data" {
+            // Safe as it is: no `<` in it (above); a script's text is never unescaped.
+            (PreEscaped(text))
+        }
+        "\n"
+        // Safe as it is: the page's own script, from the source tree.
+        script { "\n" (PreEscaped(JS)) "\n" }
+        "\n"
+    }
 }
 
 fn plant_line(r: &LogReplay) -> String {
@@ -177,102 +222,122 @@ fn plant_line(r: &LogReplay) -> String {
     }
 }
 
-/// The section of one log; returns its timeline data.
-fn log_section(h: &mut String, p: &Page<'_>, i: usize, r: &LogReplay) -> Value {
-    log_header(h, r, i);
-    summary_table(h, p.plant, r, i);
-    let _ = writeln!(
-        h,
-        "<div class=\"timeline-toolbar\" data-log=\"{i}\"><button type=\"button\" data-action=\"fit\" title=\"whole log\">fit</button><button type=\"button\" data-action=\"in\" title=\"zoom in\">+</button><button type=\"button\" data-action=\"out\" title=\"zoom out\">−</button><button type=\"button\" data-action=\"left\" title=\"earlier\">◀</button><button type=\"button\" data-action=\"right\" title=\"later\">▶</button><span class=\"range\"></span><span class=\"hint\">wheel: zoom · drag: pan · double-click: whole log</span></div>\n<noscript><p class=\"warning\">The timelines are drawn by the page's script: allow scripts to see them.</p></noscript>"
-    );
+/// The section of one log, with its timeline data.
+fn log_section(p: &Page<'_>, i: usize, r: &LogReplay) -> (Markup, Value) {
     let (detection_ids, trip_ids) = explanation_ids(r, i);
-    let parts_data: Vec<Value> = p
+    let (parts, parts_data): (Vec<Markup>, Vec<Value>) = p
         .plant
         .parts
         .iter()
         .enumerate()
-        .map(|(pi, part)| part_section(h, p, r, i, pi, part, &detection_ids))
-        .collect();
-    // The safety filter.
-    filter_section(h, p, r, i, &trip_ids);
-    h.push_str("</section>\n");
-    log_data(r, i, parts_data, &trip_ids)
+        .map(|(pi, part)| part_section(p, r, i, pi, part, &detection_ids))
+        .unzip();
+    let markup = html! {
+        section class="log" id={ "log-" (i) } data-log=(i) {
+            "\n"
+            (log_header(r))
+            (summary_table(p.plant, r, i))
+            (timeline_toolbar(i))
+            @for part in &parts { (part) }
+            (filter_section(p, r, i, &trip_ids))
+        }
+        "\n"
+    };
+    (markup, log_data(r, i, parts_data, &trip_ids))
 }
 
 /// The log's heading: its name, span and events, and the whole plant's view.
-fn log_header(h: &mut String, r: &LogReplay, i: usize) {
+fn log_header(r: &LogReplay) -> Markup {
     let at = |t: Time| absolute(r.time, t);
-    let _ = writeln!(
-        h,
-        "<section class=\"log\" id=\"log-{i}\" data-log=\"{i}\">\n<h2>{}</h2>\n<p class=\"meta\">From {} to {} ({}), {} events.</p>",
-        escape(&r.name),
-        escape(&at(r.start)),
-        escape(&at(r.end)),
-        duration(r.end - r.start),
-        r.events
-    );
-    if let Some(view) = r.summary.last() {
-        let _ = writeln!(
-            h,
-            "<p class=\"plant-view verdict-{v}\">Whole plant: <strong>{v}</strong> {}{}</p>",
-            escape(&view.labels.join(", ")),
-            if view.flags.is_empty() {
-                String::new()
-            } else {
-                format!(
-                    "; flags raised: <code>{}</code>",
-                    escape(&view.flags.join(" "))
-                )
-            },
-            v = VerdictKind::name(view.verdict),
-        );
+    html! {
+        h2 { (r.name) } "\n"
+        p class="meta" {
+            "From " (at(r.start)) " to " (at(r.end)) " (" (duration(r.end - r.start)) "), "
+            (r.events) " events."
+        }
+        "\n"
+        @if let Some(view) = r.summary.last() {
+            @let v = VerdictKind::name(view.verdict);
+            p class={ "plant-view verdict-" (v) } {
+                "Whole plant: " strong { (v) } " " (view.labels.join(", "))
+                @if !view.flags.is_empty() {
+                    "; flags raised: " code { (view.flags.join(" ")) }
+                }
+            }
+            "\n"
+        }
     }
 }
 
 /// The table of every part's final verdict, flags, first detection and
 /// meaning.
-fn summary_table(h: &mut String, plant: &Plant, r: &LogReplay, i: usize) {
+fn summary_table(plant: &Plant, r: &LogReplay, i: usize) -> Markup {
     let at = |t: Time| absolute(r.time, t);
     let rel = |t: Time| offset(t - r.start);
-    h.push_str(
-        "<table class=\"summary\">\n<thead><tr><th>part</th><th>verdict</th><th>labels</th><th>flags</th><th>first detection</th><th>meaning</th></tr></thead>\n<tbody>\n",
-    );
-    for s in r.summary.iter().take(plant.parts.len()) {
-        let meaning: Vec<String> = s
-            .labels
-            .iter()
-            .map(|l| {
-                if l == "N" {
-                    "no fault seen".to_string()
-                } else {
-                    fault_meaning(plant, l)
+    html! {
+        table class="summary" {
+            "\n"
+            thead {
+                tr {
+                    th { "part" } th { "verdict" } th { "labels" } th { "flags" }
+                    th { "first detection" } th { "meaning" }
                 }
-            })
-            .collect();
-        let _ = writeln!(
-            h,
-            "<tr data-part=\"{part}\" data-log=\"{i}\"{zoom}><td class=\"part\"><a href=\"#log-{i}-{part}\">{part}</a></td><td class=\"verdict\"><span class=\"chip verdict-{v}\">{v}</span></td><td class=\"labels\">{}</td><td class=\"flags\">{}</td><td class=\"detected\">{}</td><td class=\"meaning\">{}</td></tr>",
-            escape(&s.labels.join(" ")),
-            escape(&s.flags.join(" ")),
-            s.detected.map_or("—".to_string(), |t| format!(
-                "{} ({})",
-                escape(&at(t)),
-                rel(t)
-            )),
-            meaning
-                .iter()
-                .map(|m| escape(m))
-                .collect::<Vec<_>>()
-                .join("<br>"),
-            part = escape(&s.part),
-            v = VerdictKind::name(s.verdict),
-            zoom = s.detected.map_or(String::new(), |t| format!(
-                " data-zoom-log=\"{i}\" data-zoom-t=\"{}\"",
-                tick_of(r, t)
-            )),
-        );
+            }
+            "\n"
+            tbody {
+                "\n"
+                @for s in r.summary.iter().take(plant.parts.len()) {
+                    @let v = VerdictKind::name(s.verdict);
+                    tr data-part=(s.part) data-log=(i)
+                        data-zoom-log=[s.detected.map(|_| i)]
+                        data-zoom-t=[s.detected.map(|t| tick_of(r, t))] {
+                        td class="part" { a href={ "#log-" (i) "-" (s.part) } { (s.part) } }
+                        td class="verdict" { span class={ "chip verdict-" (v) } { (v) } }
+                        td class="labels" { (s.labels.join(" ")) }
+                        td class="flags" { (s.flags.join(" ")) }
+                        td class="detected" {
+                            @if let Some(t) = s.detected {
+                                (at(t)) " (" (rel(t)) ")"
+                            } @else {
+                                "—"
+                            }
+                        }
+                        td class="meaning" {
+                            @for (k, l) in s.labels.iter().enumerate() {
+                                @if k > 0 { br; }
+                                @if l == "N" { "no fault seen" } @else { (fault_meaning(plant, l)) }
+                            }
+                        }
+                    }
+                    "\n"
+                }
+            }
+        }
+        "\n"
     }
-    h.push_str("</tbody></table>\n");
+}
+
+/// The timelines' zoom and pan buttons (`report.js` wires them), and why
+/// nothing shows without scripts.
+fn timeline_toolbar(i: usize) -> Markup {
+    html! {
+        div class="timeline-toolbar" data-log=(i) {
+            button type="button" data-action="fit" title="whole log" { "fit" }
+            button type="button" data-action="in" title="zoom in" { "+" }
+            button type="button" data-action="out" title="zoom out" { "−" }
+            button type="button" data-action="left" title="earlier" { "◀" }
+            button type="button" data-action="right" title="later" { "▶" }
+            span class="range" {}
+            span class="hint" { "wheel: zoom · drag: pan · double-click: whole log" }
+        }
+        "\n"
+        noscript {
+            p class="warning" {
+                "The timelines are drawn by the page's script: allow scripts to see them."
+            }
+        }
+        "\n"
+    }
 }
 
 /// Explanation ids, for links from the timeline data: detection k is
@@ -296,104 +361,85 @@ fn explanation_ids(r: &LogReplay, i: usize) -> (Vec<String>, Vec<Option<String>>
 }
 
 /// Part `pi`'s section: its verdict and meaning, timeline, verdict changes and
-/// explanations. Returns its timeline data.
+/// explanations, with its timeline data.
 fn part_section(
-    h: &mut String,
     p: &Page<'_>,
     r: &LogReplay,
     i: usize,
     pi: usize,
     part: &Part,
     detection_ids: &[String],
-) -> Value {
+) -> (Markup, Value) {
     let plant = p.plant;
-    let tick = r.tick;
     let s = r.summary.get(pi);
     let pm = p.model.parts.iter().find(|m| m.name == part.name);
-    let _ = writeln!(
-        h,
-        "<section class=\"part\" id=\"log-{i}-{name}\" data-part=\"{name}\" data-log=\"{i}\">\n<h3>{name} <span class=\"chip verdict-{v}\">{v}</span> <span class=\"part-labels\">{labels}</span>{flags}</h3>",
-        name = escape(&part.name),
-        v = s.map_or("normal", |s| VerdictKind::name(s.verdict)),
-        labels = escape(&s.map_or(String::new(), |s| s.labels.join(" "))),
-        flags = s
-            .filter(|s| !s.flags.is_empty())
-            .map_or(String::new(), |s| format!(
-                " <span class=\"part-flags\">{}</span>",
-                escape(&s.flags.join(" "))
-            )),
-    );
-    if let Some(s) = s.filter(|s| s.verdict != VerdictKind::Normal) {
-        h.push_str("<ul class=\"meaning\">");
-        for l in &s.labels {
-            let _ = write!(
-                h,
-                "<li><strong>{}</strong>: {}</li>",
-                escape(l),
-                escape(&fault_meaning(plant, l))
-            );
+    let v = s.map_or("normal", |s| VerdictKind::name(s.verdict));
+    let (verdicts, verdicts_data) = verdicts_table(r, i, pi, &part.name, detection_ids);
+    let markup = html! {
+        section class="part" id={ "log-" (i) "-" (part.name) } data-part=(part.name) data-log=(i) {
+            "\n"
+            h3 {
+                (part.name) " " span class={ "chip verdict-" (v) } { (v) } " "
+                span class="part-labels" { @if let Some(s) = s { (s.labels.join(" ")) } }
+                @if let Some(s) = s.filter(|s| !s.flags.is_empty()) {
+                    " " span class="part-flags" { (s.flags.join(" ")) }
+                }
+            }
+            "\n"
+            @if let Some(s) = s.filter(|s| s.verdict != VerdictKind::Normal) {
+                ul class="meaning" {
+                    @for l in &s.labels {
+                        li { strong { (l) } ": " (fault_meaning(plant, l)) }
+                    }
+                }
+                "\n"
+            }
+            div class="timeline-host" data-log=(i) data-part=(part.name) {}
+            "\n"
+            (verdicts)
+            @for (k, d) in r.detections.iter().enumerate().filter(|(_, d)| d.part == pi) {
+                (detection_article(p, r, i, &detection_ids[k], d, pm))
+            }
+            @if !p.pictures.is_empty() {
+                p class="models-link" {
+                    a href={ "#models-" (part.name) } {
+                        "Learned model and diagnoser of " (part.name)
+                    }
+                }
+                "\n"
+            }
         }
-        h.push_str("</ul>\n");
-    }
-    let _ = writeln!(
-        h,
-        "<div class=\"timeline-host\" data-log=\"{i}\" data-part=\"{}\"></div>",
-        escape(&part.name)
-    );
-    let verdicts_data = verdicts_table(h, r, i, pi, &part.name, detection_ids);
-    // Explanations of its detections.
-    for (k, d) in r
-        .detections
-        .iter()
-        .enumerate()
-        .filter(|(_, d)| d.part == pi)
-    {
-        detection_article(h, p, r, i, &detection_ids[k], d, pm);
-    }
-    let signals_data = signals_data(plant, r, part, pm);
+        "\n"
+    };
     let data = json!({
         "name": part.name,
-        "verdict": s.map_or("normal", |s| VerdictKind::name(s.verdict)),
+        "verdict": v,
         "labels": s.map(|s| s.labels.clone()).unwrap_or_default(),
         "flags": s.map(|s| s.flags.clone()).unwrap_or_default(),
         "detected": s.and_then(|s| s.detected).map(|t| tick_of(r, t)),
-        "signals": signals_data,
-        "windows": pm.map_or(json!({}), |pm| windows(p.model, pm, tick)),
+        "signals": signals_data(plant, r, part, pm),
+        "windows": pm.map_or(json!({}), |pm| windows(p.model, pm, r.tick)),
         "verdicts": verdicts_data,
     });
-    if !p.pictures.is_empty() {
-        let _ = writeln!(
-            h,
-            "<p class=\"models-link\"><a href=\"#models-{}\">Learned model and diagnoser of {}</a></p>",
-            escape(&part.name),
-            escape(&part.name)
-        );
-    }
-    h.push_str("</section>\n");
-    data
+    (markup, data)
 }
 
-/// The part's verdict changes as a table; returns them as timeline data.
+/// The part's verdict changes as a table, with their timeline data.
 fn verdicts_table(
-    h: &mut String,
     r: &LogReplay,
     i: usize,
     pi: usize,
     part: &str,
     detection_ids: &[String],
-) -> Vec<Value> {
+) -> (Markup, Vec<Value>) {
     let at = |t: Time| absolute(r.time, t);
     let rel = |t: Time| offset(t - r.start);
-    // Verdict changes.
-    let verdicts: Vec<&Verdict> = r.verdicts.iter().filter(|v| v.part == part).collect();
-    let mut verdicts_data = Vec::new();
-    if verdicts.is_empty() {
-        h.push_str(
-            "<p class=\"quiet\">No verdict change: the part behaved as learned all along.</p>\n",
-        );
-    } else {
-        h.push_str("<table class=\"verdicts\"><thead><tr><th>time</th><th>verdict</th><th>labels</th><th>flags</th><th>why</th></tr></thead><tbody>\n");
-        for v in &verdicts {
+    // Each change, with the id of its explanation when it is a detection.
+    let verdicts: Vec<(&Verdict, Option<&String>)> = r
+        .verdicts
+        .iter()
+        .filter(|v| v.part == part)
+        .map(|v| {
             let explanation = r
                 .detections
                 .iter()
@@ -403,33 +449,57 @@ fn verdicts_table(
                         && d.verdict.labels == v.labels
                         && d.verdict.verdict == v.verdict
                 })
-                .map(|k| detection_ids[k].clone());
-            let _ = writeln!(
-                h,
-                "<tr class=\"verdict-{vk}\" data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\"><td>{} <span class=\"rel\">{}</span></td><td><span class=\"chip verdict-{vk}\">{vk}</span></td><td>{}</td><td>{}</td><td>{}{}</td></tr>",
-                escape(&at(v.t)),
-                rel(v.t),
-                escape(&v.labels.join(" ")),
-                escape(&v.flags.join(" ")),
-                escape(&v.reason),
-                explanation.as_ref().map_or(String::new(), |id| format!(
-                    " <a href=\"#{id}\">explanation</a>"
-                )),
-                vk = VerdictKind::name(v.verdict),
-                tk = tick_of(r, v.t),
-            );
-            verdicts_data.push(json!({
+                .map(|k| &detection_ids[k]);
+            (v, explanation)
+        })
+        .collect();
+    let data = verdicts
+        .iter()
+        .map(|(v, explanation)| {
+            json!({
                 "t": tick_of(r, v.t),
                 "verdict": VerdictKind::name(v.verdict),
                 "labels": v.labels,
                 "flags": v.flags,
                 "reason": v.reason,
                 "explanation": explanation,
-            }));
-        }
-        h.push_str("</tbody></table>\n");
+            })
+        })
+        .collect();
+    if verdicts.is_empty() {
+        let quiet = html! {
+            p class="quiet" { "No verdict change: the part behaved as learned all along." } "\n"
+        };
+        return (quiet, data);
     }
-    verdicts_data
+    let table = html! {
+        table class="verdicts" {
+            thead {
+                tr { th { "time" } th { "verdict" } th { "labels" } th { "flags" } th { "why" } }
+            }
+            tbody {
+                "\n"
+                @for (v, explanation) in &verdicts {
+                    @let vk = VerdictKind::name(v.verdict);
+                    tr class={ "verdict-" (vk) } data-zoom-log=(i) data-zoom-t=(tick_of(r, v.t)) {
+                        td { (at(v.t)) " " span class="rel" { (rel(v.t)) } }
+                        td { span class={ "chip verdict-" (vk) } { (vk) } }
+                        td { (v.labels.join(" ")) }
+                        td { (v.flags.join(" ")) }
+                        td {
+                            (v.reason)
+                            @if let Some(id) = explanation {
+                                " " a href={ "#" (id) } { "explanation" }
+                            }
+                        }
+                    }
+                    "\n"
+                }
+            }
+        }
+        "\n"
+    };
+    (table, data)
 }
 
 /// The part's signals with their edges (in ticks since the previous edge),
@@ -571,86 +641,74 @@ fn state_table(
     values: &[bool],
     marked: &[String],
     before: Option<&[bool]>,
-) -> String {
-    let mut t = String::from(
-        "<table class=\"state\"><thead><tr><th>signal</th><th>value</th><th>meaning</th></tr></thead><tbody>",
-    );
-    for n in names {
-        let Some(id) = plant.signals.id(n) else {
-            continue;
-        };
-        let v = values.get(id.index()).copied().unwrap_or(false);
-        let changed = before.is_some_and(|b| b.get(id.index()).copied().unwrap_or(false) != v);
-        let mark = marked.iter().any(|m| m == n);
-        let _ = write!(
-            t,
-            "<tr class=\"{}{}\"><td><code>{}</code></td><td class=\"value v{}\">{}{}</td><td>{}</td></tr>",
-            if mark { "in-constraint" } else { "" },
-            if changed { " changed" } else { "" },
-            escape(n),
-            u8::from(v),
-            u8::from(v),
-            if changed {
-                " <span class=\"was\">(was ".to_string() + if v { "0" } else { "1" } + ")</span>"
-            } else {
-                String::new()
-            },
-            escape(description(plant, n))
-        );
+) -> Markup {
+    html! {
+        table class="state" {
+            thead { tr { th { "signal" } th { "value" } th { "meaning" } } }
+            tbody {
+                @for (n, id) in names.iter().filter_map(|n| Some((n, plant.signals.id(n)?))) {
+                    @let v = values.get(id.index()).copied().unwrap_or(false);
+                    @let changed =
+                        before.is_some_and(|b| b.get(id.index()).copied().unwrap_or(false) != v);
+                    @let mark = marked.iter().any(|m| m == n);
+                    tr class={
+                        (if mark { "in-constraint" } else { "" })
+                        (if changed { " changed" } else { "" })
+                    } {
+                        td { code { (n) } }
+                        td class={ "value v" (u8::from(v)) } {
+                            (u8::from(v))
+                            @if changed { " " span class="was" { "(was " (u8::from(!v)) ")" } }
+                        }
+                        td { (description(plant, n)) }
+                    }
+                }
+            }
+        }
     }
-    t.push_str("</tbody></table>");
-    t
 }
 
-fn changes_table(plant: &Plant, changes: &[Change], reference: Time, marked: &[String]) -> String {
+/// The name of signal number `index`.
+fn signal_name(plant: &Plant, index: usize) -> &str {
+    plant.signals.name(SignalId(index as u32))
+}
+
+/// The last changes before `reference`, their edges `marked` or not.
+fn changes_table(plant: &Plant, changes: &[Change], reference: Time, marked: &[String]) -> Markup {
     if changes.is_empty() {
-        return "<p class=\"quiet\">No change of these signals since the log started.</p>"
-            .to_string();
+        return html! { p class="quiet" { "No change of these signals since the log started." } };
     }
-    let mut t = String::from(
-        "<table class=\"changes\"><thead><tr><th>when</th><th>edges</th><th>meaning</th></tr></thead><tbody>",
-    );
-    for c in changes {
-        let edges: Vec<String> = c
-            .edges
-            .iter()
-            .map(|&(i, v)| {
-                let name = plant.signals.name(diagnoser::SignalId(i as u32));
-                let text = edge(name, v);
-                if marked.iter().any(|m| m == name) {
-                    format!("<mark class=\"literal\">{}</mark>", escape(&text))
-                } else {
-                    format!("<code>{}</code>", escape(&text))
+    html! {
+        table class="changes" {
+            thead { tr { th { "when" } th { "edges" } th { "meaning" } } }
+            tbody {
+                @for c in changes {
+                    @let d = c.t - reference;
+                    tr {
+                        td { @if d == 0 { "at that scan" } @else { (duration(-d)) " before" } }
+                        td {
+                            @for (k, &(s, v)) in c.edges.iter().enumerate() {
+                                @let name = signal_name(plant, s);
+                                @if k > 0 { " " }
+                                @if marked.iter().any(|m| m == name) {
+                                    mark class="literal" { (edge(name, v)) }
+                                } @else {
+                                    code { (edge(name, v)) }
+                                }
+                            }
+                        }
+                        td {
+                            @for (k, &(s, v)) in c.edges.iter().enumerate() {
+                                @if k > 0 { "; " }
+                                (description(plant, signal_name(plant, s)))
+                                (if v { " (on)" } else { " (off)" })
+                            }
+                        }
+                    }
                 }
-            })
-            .collect();
-        let meaning: Vec<String> = c
-            .edges
-            .iter()
-            .map(|&(i, v)| {
-                let name = plant.signals.name(diagnoser::SignalId(i as u32));
-                format!(
-                    "{} {}",
-                    escape(description(plant, name)),
-                    if v { "(on)" } else { "(off)" }
-                )
-            })
-            .collect();
-        let d = c.t - reference;
-        let _ = write!(
-            t,
-            "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
-            if d == 0 {
-                "at that scan".to_string()
-            } else {
-                format!("{} before", duration(-d))
-            },
-            edges.join(" "),
-            meaning.join("; ")
-        );
+            }
+        }
     }
-    t.push_str("</tbody></table>");
-    t
 }
 
 fn vector_text(plant: &Plant, names: &[String], values: &[bool]) -> String {
@@ -667,288 +725,325 @@ fn vector_text(plant: &Plant, names: &[String], values: &[bool]) -> String {
         .join(" ")
 }
 
+/// The explanation of a detection, at seed 002's levels.
 fn detection_article(
-    h: &mut String,
     p: &Page<'_>,
     r: &LogReplay,
     i: usize,
     id: &str,
     d: &Detection,
     pm: Option<&PartModel>,
-) {
+) -> Markup {
     let plant = p.plant;
     let part = &plant.parts[d.part];
     let v = &d.verdict;
+    let vk = VerdictKind::name(v.verdict);
     let names = signal_names(plant, part, pm);
-    let _ = writeln!(
-        h,
-        "<article class=\"explanation detection verdict-{vk}\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{tk}\">{part}: {vk} {labels} at {when} <span class=\"rel\">{rel}</span></h4>\n<p class=\"reason\">{reason}</p>",
-        vk = VerdictKind::name(v.verdict),
-        tk = tick_of(r, v.t),
-        part = escape(&part.name),
-        labels = escape(&v.labels.join(", ")),
-        when = escape(&absolute(r.time, v.t)),
-        rel = offset(v.t - r.start),
-        reason = escape(&v.reason),
-    );
-    // Level 0: current state.
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"0\"><h5>Current state</h5>{}{}</section>",
-        state_table(plant, &names, &d.now, &[], Some(&d.before)),
-        if v.flags.is_empty() {
-            String::new()
-        } else {
-            format!(
-                "<p>Flags raised: <code>{}</code>. The filter now reads the flagged sensors' temporal estimates instead of their readings.</p>",
-                escape(&v.flags.join(" "))
-            )
-        }
-    );
-    // Level 1: the state before stop.
-    let before_text = vector_text(plant, &names, &d.before);
-    let waited = if d.by_scan {
-        format!(
-            "Before the scan that changed the verdict, the part was in <code>{}</code>, entered {} earlier.",
-            escape(&before_text),
-            duration(v.t - d.since)
-        )
-    } else {
-        format!(
-            "The part had been waiting in <code>{}</code> for {} when the deadline passed.",
-            escape(&before_text),
-            duration(v.t - d.since)
-        )
-    };
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"1\"><h5>State before stop</h5><p>{waited}</p>{}</section>",
-        state_table(plant, &names, &d.before, &[], None)
-    );
-    // Level 2: advanced state, the last changes.
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"2\"><h5>Advanced state: the last changes</h5>{}</section>",
-        changes_table(plant, &d.changes, v.t, &[])
-    );
-    // Level 3: hypothesis.
-    h.push_str("<section class=\"level\" data-level=\"3\"><h5>Hypothesis</h5><ul>");
-    let _ = write!(h, "<li>What the diagnoser saw: {}.</li>", escape(&v.reason));
-    if let Some(pm) = pm {
-        let key: Vec<bool> = names
-            .iter()
-            .map(|n| {
-                plant
-                    .signals
-                    .id(n)
-                    .and_then(|id| d.before.get(id.index()).copied())
-                    .unwrap_or(false)
-            })
-            .collect();
-        if let Some(state) = pm.states.iter().find(|s| s.values == key) {
-            let expected: Vec<String> = state
-                .expected
-                .iter()
-                .filter_map(|e| {
-                    let tr = pm.transitions.get(e.transition)?;
-                    Some(format!(
-                        "<code>{}</code> within [{}, {}] {} after {}",
-                        escape(&e.event),
-                        tr.guard.lo,
-                        tr.guard.hi,
-                        p.model.time_unit.name(),
-                        ModelClock::parse(&e.clock)
-                            .map_or(escape(&e.clock), |c| escape(&c.since()))
-                    ))
-                })
-                .collect();
-            if !expected.is_empty() {
-                let _ = write!(
-                    h,
-                    "<li>In that state, the learned model expects {}.</li>",
-                    expected.join(", or ")
-                );
+    let before = vector_text(plant, &names, &d.before);
+    let waited = duration(v.t - d.since);
+    html! {
+        article class={ "explanation detection verdict-" (vk) } id=(id) {
+            "\n"
+            h4 data-zoom-log=(i) data-zoom-t=(tick_of(r, v.t)) {
+                (part.name) ": " (vk) " " (v.labels.join(", ")) " at " (absolute(r.time, v.t)) " "
+                span class="rel" { (offset(v.t - r.start)) }
             }
-        } else {
-            h.push_str("<li>That state was never seen while learning.</li>");
+            "\n"
+            p class="reason" { (v.reason) }
+            "\n"
+            section class="level" data-level="0" {
+                h5 { "Current state" }
+                (state_table(plant, &names, &d.now, &[], Some(&d.before)))
+                @if !v.flags.is_empty() {
+                    p {
+                        "Flags raised: " code { (v.flags.join(" ")) } ". The filter now reads the "
+                        "flagged sensors' temporal estimates instead of their readings."
+                    }
+                }
+            }
+            "\n"
+            section class="level" data-level="1" {
+                h5 { "State before stop" }
+                p {
+                    @if d.by_scan {
+                        "Before the scan that changed the verdict, the part was in "
+                        code { (before) } ", entered " (waited) " earlier."
+                    } @else {
+                        "The part had been waiting in " code { (before) } " for " (waited)
+                        " when the deadline passed."
+                    }
+                }
+                (state_table(plant, &names, &d.before, &[], None))
+            }
+            "\n"
+            section class="level" data-level="2" {
+                h5 { "Advanced state: the last changes" }
+                (changes_table(plant, &d.changes, v.t, &[]))
+            }
+            "\n"
+            (detection_hypothesis(p, d, &names, pm))
+            "\n"
         }
+        "\n"
     }
-    for l in &v.labels {
-        let _ = write!(
-            h,
-            "<li>Candidate <strong>{}</strong>: {}.</li>",
-            escape(l),
-            escape(&fault_meaning(plant, l))
-        );
-    }
-    if v.verdict == VerdictKind::Ambiguous {
-        h.push_str("<li>The candidates explain the observations equally well so far: later events will tell them apart, or a check on the machine will.</li>");
-    }
-    h.push_str("</ul></section>\n</article>\n");
 }
 
-fn filter_section(h: &mut String, p: &Page<'_>, r: &LogReplay, i: usize, ids: &[Option<String>]) {
+/// A detection's last level: what the diagnoser saw, what the model expected
+/// and the candidate faults.
+fn detection_hypothesis(
+    p: &Page<'_>,
+    d: &Detection,
+    names: &[String],
+    pm: Option<&PartModel>,
+) -> Markup {
     let plant = p.plant;
-    let total: u64 = r.trip_counts.iter().map(|c| c.1).sum();
-    let _ = writeln!(
-        h,
-        "<section class=\"filter\" data-log=\"{i}\"><h3>Safety filter</h3>"
-    );
-    if r.rewrites.is_empty() {
-        h.push_str("<p class=\"quiet\">No flag was raised: the constraints read the sensors as they are.</p>\n");
-    }
-    for w in &r.rewrites {
-        let _ = write!(
-            h,
-            "<article class=\"rewrite\"><h4 data-zoom-log=\"{i}\" data-zoom-t=\"{}\"><code>{}</code> raised at {} <span class=\"rel\">{}</span></h4>",
-            tick_of(r, w.t),
-            escape(&w.flag),
-            escape(&absolute(r.time, w.t)),
-            offset(w.t - r.start)
-        );
-        if w.constraints.is_empty() {
-            let _ = write!(
-                h,
-                "<p>{}</p>",
-                if p.coupling == Coupling::None {
-                    "The filter was replayed without coupling: the constraints still read the sensors.".to_string()
-                } else if w.sensors.is_empty() {
-                    format!(
-                        "No constraint reads a sensor of this partition; the parts of {} go to the fallback (their outputs forced to their safe values).",
-                        escape(&w.parts.join(", "))
-                    )
-                } else {
-                    "No constraint reads the switched sensors.".to_string()
+    let v = &d.verdict;
+    html! {
+        section class="level" data-level="3" {
+            h5 { "Hypothesis" }
+            ul {
+                li { "What the diagnoser saw: " (v.reason) "." }
+                @if let Some(pm) = pm { (expected_next(p, pm, names, &d.before)) }
+                @for l in &v.labels {
+                    li { "Candidate " strong { (l) } ": " (fault_meaning(plant, l)) "." }
                 }
-            );
-        } else {
-            let _ = write!(
-                h,
-                "<p>From the next scan, {} read{} the temporal estimate instead of the sensor. The constraints so rewritten:</p><table class=\"rewrites\"><thead><tr><th>constraint</th><th>as written</th><th>as evaluated now</th></tr></thead><tbody>",
-                escape(&w.sensors.join(", ")),
-                if w.sensors.len() == 1 { "s" } else { "" },
-            );
-            for (name, written, now) in &w.constraints {
-                let _ = write!(
-                    h,
-                    "<tr><td><code>{}</code></td><td><code>{}</code></td><td><code>{}</code></td></tr>",
-                    escape(name),
-                    escape(written),
-                    escape(now)
-                );
+                @if v.verdict == VerdictKind::Ambiguous {
+                    li {
+                        "The candidates explain the observations equally well so far: later "
+                        "events will tell them apart, or a check on the machine will."
+                    }
+                }
             }
-            h.push_str("</tbody></table>");
-        }
-        h.push_str("</article>\n");
-    }
-    if total == 0 {
-        h.push_str("<p class=\"quiet\">No safety constraint held in this log.</p>\n");
-    } else {
-        h.push_str("<table class=\"trips\"><thead><tr><th>constraint</th><th>times it started to hold</th><th>first</th></tr></thead><tbody>");
-        for (name, n) in r.trip_counts.iter().filter(|c| c.1 > 0) {
-            let first = r.trips.iter().zip(ids).find(|(t, _)| &t.constraint == name);
-            let _ = write!(
-                h,
-                "<tr><td><code>{}</code></td><td>{n}</td><td>{}</td></tr>",
-                escape(name),
-                first.map_or(String::new(), |(t, id)| format!(
-                    "<a href=\"#{}\" data-zoom-log=\"{i}\" data-zoom-t=\"{}\">{}</a>",
-                    id.as_deref().unwrap_or_default(),
-                    tick_of(r, t.t),
-                    escape(&absolute(r.time, t.t))
-                ))
-            );
-        }
-        h.push_str("</tbody></table>\n");
-        if r.trips.len() as u64 > ids.iter().flatten().count() as u64 {
-            let _ = writeln!(
-                h,
-                "<p class=\"quiet\">The first {} trips of each constraint are explained below; all {} are on the timelines{}.</p>",
-                super::collect::EXPLAINED_TRIPS,
-                r.trips.len(),
-                if total > r.trips.len() as u64 {
-                    format!(" (of {total}, the rest only counted)")
-                } else {
-                    String::new()
-                }
-            );
         }
     }
-    for (t, id) in r.trips.iter().zip(ids) {
-        if let (Some(id), Some(_)) = (id, &t.detail) {
-            trip_article(h, plant, r, i, id, t);
-        }
-    }
-    h.push_str("</section>\n");
 }
 
-fn trip_article(h: &mut String, plant: &Plant, r: &LogReplay, i: usize, id: &str, t: &Trip) {
-    let Some(detail) = &t.detail else {
-        return;
+/// What the learned model expects next in the state the part was in
+/// (`before`), or that it never saw that state.
+fn expected_next(p: &Page<'_>, pm: &PartModel, names: &[String], before: &[bool]) -> Markup {
+    let key: Vec<bool> = names
+        .iter()
+        .map(|n| {
+            p.plant
+                .signals
+                .id(n)
+                .and_then(|id| before.get(id.index()).copied())
+                .unwrap_or(false)
+        })
+        .collect();
+    let Some(state) = pm.states.iter().find(|s| s.values == key) else {
+        return html! { li { "That state was never seen while learning." } };
     };
+    let expected: Vec<_> = state
+        .expected
+        .iter()
+        .filter_map(|e| Some((e, pm.transitions.get(e.transition)?)))
+        .collect();
+    html! {
+        @if !expected.is_empty() {
+            li {
+                "In that state, the learned model expects "
+                @for (k, (e, tr)) in expected.iter().enumerate() {
+                    @if k > 0 { ", or " }
+                    code { (e.event) } " within [" (tr.guard.lo) ", " (tr.guard.hi) "] "
+                    (p.model.time_unit.name()) " after "
+                    (ModelClock::parse(&e.clock).map_or_else(|| e.clock.clone(), |c| c.since()))
+                }
+                "."
+            }
+        }
+    }
+}
+
+/// The safety filter's part of a log: the flags that rewrote constraints, the
+/// constraints that held, and the explanations of their first trips.
+fn filter_section(p: &Page<'_>, r: &LogReplay, i: usize, ids: &[Option<String>]) -> Markup {
+    let total: u64 = r.trip_counts.iter().map(|c| c.1).sum();
+    html! {
+        section class="filter" data-log=(i) {
+            h3 { "Safety filter" }
+            "\n"
+            @if r.rewrites.is_empty() {
+                p class="quiet" {
+                    "No flag was raised: the constraints read the sensors as they are."
+                }
+                "\n"
+            }
+            @for w in &r.rewrites { (rewrite_article(p.coupling, r, i, w)) }
+            @if total == 0 {
+                p class="quiet" { "No safety constraint held in this log." }
+                "\n"
+            } @else {
+                (trips_table(r, i, ids, total))
+            }
+            @for (t, id) in r.trips.iter().zip(ids) {
+                @if let (Some(id), Some(detail)) = (id, &t.detail) {
+                    (trip_article(p.plant, r, i, id, t, detail))
+                }
+            }
+        }
+        "\n"
+    }
+}
+
+/// A flag raised, and the constraints it rewrote.
+fn rewrite_article(coupling: Coupling, r: &LogReplay, i: usize, w: &Rewrite) -> Markup {
+    html! {
+        article class="rewrite" {
+            h4 data-zoom-log=(i) data-zoom-t=(tick_of(r, w.t)) {
+                code { (w.flag) } " raised at " (absolute(r.time, w.t)) " "
+                span class="rel" { (offset(w.t - r.start)) }
+            }
+            @if w.constraints.is_empty() {
+                p {
+                    @if coupling == Coupling::None {
+                        "The filter was replayed without coupling: the constraints still read "
+                        "the sensors."
+                    } @else if w.sensors.is_empty() {
+                        "No constraint reads a sensor of this partition; the parts of "
+                        (w.parts.join(", "))
+                        " go to the fallback (their outputs forced to their safe values)."
+                    } @else {
+                        "No constraint reads the switched sensors."
+                    }
+                }
+            } @else {
+                p {
+                    "From the next scan, " (w.sensors.join(", ")) " read"
+                    @if w.sensors.len() == 1 { "s" }
+                    " the temporal estimate instead of the sensor. The constraints so rewritten:"
+                }
+                table class="rewrites" {
+                    thead {
+                        tr { th { "constraint" } th { "as written" } th { "as evaluated now" } }
+                    }
+                    tbody {
+                        @for (name, written, now) in &w.constraints {
+                            tr {
+                                td { code { (name) } }
+                                td { code { (written) } }
+                                td { code { (now) } }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        "\n"
+    }
+}
+
+/// How often each constraint started to hold, with a link to its first trip.
+fn trips_table(r: &LogReplay, i: usize, ids: &[Option<String>], total: u64) -> Markup {
+    html! {
+        table class="trips" {
+            thead {
+                tr { th { "constraint" } th { "times it started to hold" } th { "first" } }
+            }
+            tbody {
+                @for (name, n) in r.trip_counts.iter().filter(|c| c.1 > 0) {
+                    tr {
+                        td { code { (name) } }
+                        td { (n) }
+                        td {
+                            @if let Some((t, id)) =
+                                r.trips.iter().zip(ids).find(|(t, _)| &t.constraint == name)
+                            {
+                                a href={ "#" (id.as_deref().unwrap_or_default()) }
+                                    data-zoom-log=(i) data-zoom-t=(tick_of(r, t.t)) {
+                                    (absolute(r.time, t.t))
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        "\n"
+        @if r.trips.len() > ids.iter().flatten().count() {
+            p class="quiet" {
+                "The first " (EXPLAINED_TRIPS) " trips of each constraint are explained below; all "
+                (r.trips.len()) " are on the timelines"
+                @if total > r.trips.len() as u64 { " (of " (total) ", the rest only counted)" }
+                "."
+            }
+            "\n"
+        }
+    }
+}
+
+/// The explanation of a trip, at seed 002's levels.
+fn trip_article(
+    plant: &Plant,
+    r: &LogReplay,
+    i: usize,
+    id: &str,
+    t: &Trip,
+    detail: &TripDetail,
+) -> Markup {
     let written = plant.constraints.iter().find(|c| c.name == t.constraint);
     let signals = constraint_signals(plant, written);
     let literal_names = literal_names(&t.literals);
-    let _ = writeln!(
-        h,
-        "<article class=\"explanation trip\" id=\"{id}\">\n<h4 data-zoom-log=\"{i}\" data-zoom-t=\"{}\">{} held at {} <span class=\"rel\">{}</span></h4>\n<p class=\"constraint\"><code>{}</code></p>",
-        tick_of(r, t.t),
-        escape(&t.constraint),
-        escape(&absolute(r.time, t.t)),
-        offset(t.t - r.start),
-        highlight(&t.evaluated, &t.literals)
-    );
-    if let Some(c) = written
-        && c.expr.to_string() != t.evaluated
-    {
-        let _ = write!(
-            h,
-            "<p class=\"quiet\">As written in the plant file: <code>{}</code>; the flags raised (<code>{}</code>) rewrote it.</p>",
-            escape(&c.expr.to_string()),
-            escape(&detail.flags.join(" "))
-        );
-    }
     let actions: Vec<String> = t
         .literals
         .iter()
         .filter_map(|l| filter_action(plant, l))
         .collect();
     let after = after_filter(plant, &detail.now, &t.literals);
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"0\"><h5>Current state</h5><p>The filter {}.</p>{}</section>",
-        if actions.is_empty() {
-            "sends the plant to the fallback".to_string()
-        } else {
-            escape(&actions.join("; "))
-        },
-        state_table(plant, &signals, &after, &[], Some(&detail.now)),
-    );
-    let situation = situation(plant, t);
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"1\"><h5>Projection</h5><p>Without the filter, the orders would have gone out in the forbidden situation {}: {}.</p></section>",
-        escape(&t.constraint),
-        escape(&situation.join(", "))
-    );
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"2\"><h5>State before stop</h5><p>The scan in which the constraint held; its elements are marked, and changes from the scan before are shown.</p>{}</section>",
-        state_table(
-            plant,
-            &signals,
-            &detail.now,
-            &literal_names,
-            Some(&detail.before)
-        )
-    );
-    let _ = writeln!(
-        h,
-        "<section class=\"level\" data-level=\"3\"><h5>Advanced state: the last changes</h5>{}</section>",
-        changes_table(plant, &detail.changes, t.t, &literal_names)
-    );
-    hypothesis_level(h, plant, t, detail, &signals, &actions);
-    h.push_str("</article>\n");
+    html! {
+        article class="explanation trip" id=(id) {
+            "\n"
+            h4 data-zoom-log=(i) data-zoom-t=(tick_of(r, t.t)) {
+                (t.constraint) " held at " (absolute(r.time, t.t)) " "
+                span class="rel" { (offset(t.t - r.start)) }
+            }
+            "\n"
+            p class="constraint" { code { (highlight(&t.evaluated, &t.literals)) } }
+            "\n"
+            @if let Some(c) = written.filter(|c| c.expr.to_string() != t.evaluated) {
+                p class="quiet" {
+                    "As written in the plant file: " code { (c.expr) } "; the flags raised ("
+                    code { (detail.flags.join(" ")) } ") rewrote it."
+                }
+            }
+            section class="level" data-level="0" {
+                h5 { "Current state" }
+                p {
+                    "The filter "
+                    @if actions.is_empty() { "sends the plant to the fallback" }
+                    @else { (actions.join("; ")) }
+                    "."
+                }
+                (state_table(plant, &signals, &after, &[], Some(&detail.now)))
+            }
+            "\n"
+            section class="level" data-level="1" {
+                h5 { "Projection" }
+                p {
+                    "Without the filter, the orders would have gone out in the forbidden situation "
+                    (t.constraint) ": " (situation(plant, t).join(", ")) "."
+                }
+            }
+            "\n"
+            section class="level" data-level="2" {
+                h5 { "State before stop" }
+                p {
+                    "The scan in which the constraint held; its elements are marked, and changes "
+                    "from the scan before are shown."
+                }
+                (state_table(plant, &signals, &detail.now, &literal_names, Some(&detail.before)))
+            }
+            "\n"
+            section class="level" data-level="3" {
+                h5 { "Advanced state: the last changes" }
+                (changes_table(plant, &detail.changes, t.t, &literal_names))
+            }
+            "\n"
+            (trip_hypothesis(plant, t, detail, &signals, &actions))
+            "\n"
+        }
+        "\n"
+    }
 }
 
 /// The signals constraint `written` reads, sorted, once each.
@@ -1019,25 +1114,23 @@ fn situation(plant: &Plant, t: &Trip) -> Vec<String> {
         .collect()
 }
 
-/// The explanation's last level, after seed 002: which sensor changes may
-/// have led the control program to the forbidden orders.
-fn hypothesis_level(
-    h: &mut String,
+/// A trip's last level, after seed 002: which sensor changes may have led the
+/// control program to the forbidden orders.
+fn trip_hypothesis(
     plant: &Plant,
     t: &Trip,
     detail: &TripDetail,
     signals: &[String],
     actions: &[String],
-) {
+) -> Markup {
     let last: Option<&Change> = detail.changes.last().filter(|c| c.t == t.t);
     let recent: Vec<&Change> = detail.changes.iter().rev().take(3).collect();
     let mut inside = Vec::new();
     let mut outside = Vec::new();
     for c in &recent {
         for &(s, v) in &c.edges {
-            let name = plant.signals.name(diagnoser::SignalId(s as u32));
-            let id = diagnoser::SignalId(s as u32);
-            if plant.signals.get(id).kind != SignalKind::Sensor {
+            let name = signal_name(plant, s);
+            if plant.signals.get(SignalId(s as u32)).kind != SignalKind::Sensor {
                 continue;
             }
             let text = edge(name, v);
@@ -1048,71 +1141,87 @@ fn hypothesis_level(
             }
         }
     }
-    h.push_str("<section class=\"level\" data-level=\"4\"><h5>Hypothesis</h5><ul>");
-    if !inside.is_empty() {
-        let _ = write!(
-            h,
-            "<li>Sensors of the constraint changed just before: <code>{}</code>. The control program may not have taken them into account to change its outputs.</li>",
-            escape(&inside.join(" "))
-        );
-    }
-    if !outside.is_empty() {
-        let _ = write!(
-            h,
-            "<li>Sensors outside the constraint changed just before: <code>{}</code>. One of them may have made the program change an output the constraint reads (a wrong receptivity).</li>",
-            escape(&outside.join(" "))
-        );
-    }
-    if inside.is_empty() && outside.is_empty() {
-        h.push_str("<li>No sensor changed just before: the orders may come from inside the PLC (a timer, a memory).</li>");
-    }
-    if last.is_none() {
-        h.push_str("<li>Nothing changed in this very scan: the constraint started to hold as time passed (an estimate's interval or a flag).</li>");
-    }
-    if !actions.is_empty() {
-        let _ = write!(
-            h,
-            "<li>Expected of the control program: what the filter did, {}.</li>",
-            escape(&actions.join("; "))
-        );
-    }
-    h.push_str("</ul></section>\n");
-}
-
-fn models_section(h: &mut String, p: &Page<'_>) {
-    if p.pictures.is_empty() {
-        return;
-    }
-    h.push_str("<section class=\"models\" id=\"models\"><h2>Models</h2>\n<p class=\"meta\">Learned models: states are the observed vectors of a part's signals (double border: the part waits there for a command); transitions carry the learned window on their clock. Diagnosers: each state holds the candidate fault labels (red: one fault certain, amber: ambiguous).</p>\n");
-    for pics in p.pictures {
-        // Closed by default: a large diagnoser is laid out only when opened.
-        let _ = writeln!(
-            h,
-            "<details class=\"part-models\" id=\"models-{}\"><summary><h3>{}</h3></summary>",
-            escape(&pics.part),
-            escape(&pics.part)
-        );
-        for (what, pic) in [
-            ("learned model", &pics.model),
-            ("diagnoser", &pics.diagnoser),
-        ] {
-            if let Some(pic) = pic {
-                let _ = writeln!(
-                    h,
-                    "<figure class=\"model-picture\">{}<figcaption>{} of {} ({})</figcaption></figure>",
-                    pic.svg,
-                    what,
-                    escape(&pics.part),
-                    pic.by
-                );
+    html! {
+        section class="level" data-level="4" {
+            h5 { "Hypothesis" }
+            ul {
+                @if !inside.is_empty() {
+                    li {
+                        "Sensors of the constraint changed just before: "
+                        code { (inside.join(" ")) }
+                        ". The control program may not have taken them into account to change "
+                        "its outputs."
+                    }
+                }
+                @if !outside.is_empty() {
+                    li {
+                        "Sensors outside the constraint changed just before: "
+                        code { (outside.join(" ")) } ". One of them may have made the program "
+                        "change an output the constraint reads (a wrong receptivity)."
+                    }
+                }
+                @if inside.is_empty() && outside.is_empty() {
+                    li {
+                        "No sensor changed just before: the orders may come from inside the PLC "
+                        "(a timer, a memory)."
+                    }
+                }
+                @if last.is_none() {
+                    li {
+                        "Nothing changed in this very scan: the constraint started to hold as "
+                        "time passed (an estimate's interval or a flag)."
+                    }
+                }
+                @if !actions.is_empty() {
+                    li {
+                        "Expected of the control program: what the filter did, "
+                        (actions.join("; ")) "."
+                    }
+                }
             }
         }
-        if let Some(note) = &pics.note {
-            let _ = writeln!(h, "<p class=\"quiet\">{}</p>", escape(note));
-        }
-        h.push_str("</details>\n");
     }
-    h.push_str("</section>\n");
+}
+
+/// The pictures of every part's learned model and diagnoser, if drawn.
+fn models_section(p: &Page<'_>) -> Markup {
+    if p.pictures.is_empty() {
+        return html! {};
+    }
+    html! {
+        section class="models" id="models" {
+            h2 { "Models" }
+            "\n"
+            p class="meta" {
+                "Learned models: states are the observed vectors of a part's signals (double "
+                "border: the part waits there for a command); transitions carry the learned "
+                "window on their clock. Diagnosers: each state holds the candidate fault labels "
+                "(red: one fault certain, amber: ambiguous)."
+            }
+            "\n"
+            @for pics in p.pictures {
+                // Closed by default: a large diagnoser is laid out only when opened.
+                details class="part-models" id={ "models-" (pics.part) } {
+                    summary { h3 { (pics.part) } }
+                    "\n"
+                    @let drawn = [("learned model", &pics.model), ("diagnoser", &pics.diagnoser)];
+                    @for (what, pic) in drawn {
+                        @if let Some(pic) = pic {
+                            figure class="model-picture" {
+                                // Safe as it is: SVG whose text `pictures` or Graphviz escaped.
+                                (PreEscaped(&pic.svg))
+                                figcaption { (what) " of " (pics.part) " (" (pic.by) ")" }
+                            }
+                            "\n"
+                        }
+                    }
+                    @if let Some(note) = &pics.note { p class="quiet" { (note) } "\n" }
+                }
+                "\n"
+            }
+        }
+        "\n"
+    }
 }
 
 #[cfg(test)]
@@ -1122,12 +1231,27 @@ mod tests {
     use super::*;
     use crate::fixtures::{learned, replay, sorting};
 
-    /// Markup where the plant file, the log and the diagnosers put free text.
+    /// Markup, quotes and ampersands where the plant file, the log and the
+    /// diagnosers put free text.
     const PLANT: &str = "<script>alert('plant')</script>";
-    const PART: &str = "turn<script>alert('part')</script>table";
-    const DESCRIPTION: &str = "<script>alert('C5')</script> at unloading position";
-    const REASON: &str = "<!--<script>alert('reason')</script>";
+    const PART: &str = "turn<script>alert('part')</script>\"table\" & 'co'";
+    const DESCRIPTION: &str = "<script>alert(1)</script> \"at\" 'unloading' & position";
+    const REASON: &str = "<!--<script>alert(1)</script> \"stuck\" & 'late'";
     const PATH: &str = "<script>alert('path')</script>/plant.toml";
+
+    /// `text` as it must reach the page: every character that could start or
+    /// end markup, or an attribute value, as a character reference.
+    fn escaped(text: &str) -> String {
+        text.replace('&', "&amp;")
+            .replace('<', "&lt;")
+            .replace('>', "&gt;")
+            .replace('"', "&quot;")
+    }
+
+    /// `text` as a TOML basic string's content.
+    fn toml(text: &str) -> String {
+        text.replace('\\', "\\\\").replace('"', "\\\"")
+    }
 
     /// The sorting line with markup in its name, its turntable's name and
     /// C5's description.
@@ -1135,11 +1259,19 @@ mod tests {
         let path = sorting("normal").join("plant.toml");
         let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{e}"));
         let text = text
-            .replacen("name = \"sorting\"", &format!("name = \"{PLANT}\""), 1)
-            .replacen("name = \"turntable\"", &format!("name = \"{PART}\""), 1)
+            .replacen(
+                "name = \"sorting\"",
+                &format!("name = \"{}\"", toml(PLANT)),
+                1,
+            )
+            .replacen(
+                "name = \"turntable\"",
+                &format!("name = \"{}\"", toml(PART)),
+                1,
+            )
             .replacen(
                 "description = \"turntable at unloading position\"",
-                &format!("description = \"{DESCRIPTION}\""),
+                &format!("description = \"{}\"", toml(DESCRIPTION)),
                 1,
             );
         let plant = Plant::parse(&text, &path).unwrap_or_else(|e| panic!("{e}"));
@@ -1177,12 +1309,15 @@ mod tests {
             pictures: &pictures,
         });
 
+        // No script from the inputs anywhere: not in the markup, the data or
+        // the pictures.
+        assert!(!html.contains("<script>alert"), "a script from the inputs");
         // The markup is printed as text wherever the page shows it.
         let (markup, rest) = html
             .split_once("<script type=\"application/json\" id=\"gardefou-data\">")
             .expect("the timeline data");
         for text in [PLANT, PART, DESCRIPTION, REASON, PATH] {
-            assert!(markup.contains(&escape(text)), "{text} not shown");
+            assert!(markup.contains(&escaped(text)), "{text} not shown");
         }
         assert!(!markup.contains("<script"), "a script tag from the inputs");
         // The timeline data ends where the page ends it, whole: no text in it
@@ -1211,7 +1346,7 @@ mod tests {
         let models = rest
             .strip_prefix(&format!("\n<script>\n{JS}\n</script>"))
             .expect("the page's script");
-        assert!(models.contains(&escape(PART)));
+        assert!(models.contains(&escaped(PART)));
         assert!(!models.contains("<script"), "a script tag from the inputs");
     }
 

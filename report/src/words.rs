@@ -1,23 +1,11 @@
 //! The report's sentences: faults, signals, edges and constraints in words.
+//!
+//! They are plain text, which the page's templates escape; only [`highlight`]
+//! returns markup, built through maud as well.
 
 use diagnoser::fault::FaultTemplate;
 use diagnoser::{Plant, Time, TimeFormat};
-
-/// Escapes text for HTML element content and attribute values.
-pub fn escape(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
-            c => out.push(c),
-        }
-    }
-    out
-}
+use maud::{Markup, html};
 
 /// A signal's description from the plant file, or its name.
 pub fn description<'a>(plant: &'a Plant, name: &'a str) -> &'a str {
@@ -141,12 +129,13 @@ pub fn duration(d: Time) -> String {
 ///
 /// A literal matches whole tokens only: `C4` does not match inside `C40`, nor
 /// the `C4` of `!C4`.
-pub fn highlight(expr: &str, literals: &[String]) -> String {
+pub fn highlight(expr: &str, literals: &[String]) -> Markup {
     let mut lits: Vec<&str> = literals.iter().map(String::as_str).collect();
     lits.sort_by_key(|l| std::cmp::Reverse(l.len()));
     let bytes = expr.as_bytes();
     let word = |b: u8| b.is_ascii_alphanumeric() || b == b'_';
-    let mut out = String::new();
+    // The text before each literal found, and the literal.
+    let mut pieces: Vec<(&str, &str)> = Vec::new();
     let mut i = 0;
     let mut plain = 0;
     while i < expr.len() {
@@ -160,10 +149,7 @@ pub fn highlight(expr: &str, literals: &[String]) -> String {
         });
         match found {
             Some(l) => {
-                out.push_str(&escape(&expr[plain..i]));
-                out.push_str("<mark class=\"literal\">");
-                out.push_str(&escape(l));
-                out.push_str("</mark>");
+                pieces.push((&expr[plain..i], l));
                 i += l.len();
                 plain = i;
             }
@@ -172,8 +158,12 @@ pub fn highlight(expr: &str, literals: &[String]) -> String {
             }
         }
     }
-    out.push_str(&escape(&expr[plain..]));
-    out
+    html! {
+        @for (text, literal) in pieces {
+            (text) mark class="literal" { (literal) }
+        }
+        (&expr[plain..])
+    }
 }
 
 /// What the filter does about a true literal of a violated constraint, if it is
@@ -241,14 +231,19 @@ mod tests {
     fn highlight_marks_whole_literals_only() {
         let lits = vec!["!C4".to_string(), "A4".to_string(), "C5".to_string()];
         assert_eq!(
-            highlight("!C4 & A4 & C50 & !C5", &lits),
+            highlight("!C4 & A4 & C50 & !C5", &lits).into_string(),
             "<mark class=\"literal\">!C4</mark> &amp; <mark class=\"literal\">A4</mark> &amp; C50 &amp; !C5"
         );
         let lits = vec!["RE(A4)".to_string()];
         assert_eq!(
-            highlight("!C4 & RE(A4)", &lits),
+            highlight("!C4 & RE(A4)", &lits).into_string(),
             "!C4 &amp; <mark class=\"literal\">RE(A4)</mark>"
         );
+    }
+
+    /// `s` as the page shows text, escaped by maud.
+    fn text(s: &str) -> String {
+        html! { (s) }.into_string()
     }
 
     #[test]
@@ -268,21 +263,16 @@ mod tests {
             expr in "[!&|() A-Z0-9_<>\"é]{0,40}",
             literals in proptest::collection::vec("!?[A-Z]{1,2}[0-9]?", 0..4),
         ) {
-            let out = highlight(&expr, &literals);
+            let out = highlight(&expr, &literals).into_string();
             let plain = out
                 .replace("<mark class=\"literal\">", "")
                 .replace("</mark>", "");
-            proptest::prop_assert_eq!(plain, escape(&expr));
+            proptest::prop_assert_eq!(plain, text(&expr));
             // A mark holds a literal.
             for piece in out.split("<mark class=\"literal\">").skip(1) {
                 let inner = piece.split("</mark>").next().unwrap_or("");
-                proptest::prop_assert!(literals.iter().any(|l| escape(l) == inner));
+                proptest::prop_assert!(literals.iter().any(|l| text(l) == inner));
             }
         }
-    }
-
-    #[test]
-    fn escape_covers_markup() {
-        assert_eq!(escape("a<b & \"c\">"), "a&lt;b &amp; &quot;c&quot;&gt;");
     }
 }
