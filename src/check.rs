@@ -98,8 +98,11 @@ pub fn run(args: CheckArgs) -> Result<(), Failure> {
         separate_under_any_order(&engine, &mut verdicts, model.time_unit);
         if let Some(dir) = &args.dot {
             let path = dir.join(format!("{}.diagnoser.dot", engine.part.name));
-            fs::write(&path, compiled.to_dot(&engine, model.time_unit))
-                .map_err(|e| Failure::Io(format!("cannot write {}: {e}", path.display())))?;
+            fs::write(
+                &path,
+                compiled.to_digraph(&engine, model.time_unit).to_dot(),
+            )
+            .map_err(|e| Failure::Io(format!("cannot write {}: {e}", path.display())))?;
         }
         let simple = if args.filter {
             let s = simplify(&plant, &engine, size, compiled.truncated)?;

@@ -10,7 +10,7 @@ use diagnoser::output::write_file;
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use indicatif::{ProgressBar, ProgressStyle};
 use learning::conformance::deviations;
-use learning::dot::part_to_dot;
+use learning::graph::part_digraph;
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
 use logs::{IngestOptions, LogFormat, open};
@@ -149,7 +149,7 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         for part in &model.parts {
             write_file(
                 &dir.join(format!("{}.dot", part.name)),
-                part_to_dot(&model, part).as_bytes(),
+                part_digraph(&model, part).to_dot().as_bytes(),
             )?;
         }
     }

@@ -10,7 +10,7 @@
 //! It is not for: running diagnosers on-line, evaluating the filter, or simulating.
 
 pub mod conformance;
-pub mod dot;
+pub mod graph;
 pub mod learn;
 mod replay;
 pub mod suggest;

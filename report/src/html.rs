@@ -62,7 +62,7 @@ pub fn pictures(
         let name = engine.part.name.clone();
         let learned = match model.parts.iter().find(|p| p.name == name) {
             Some(pm) => Some(pictures::render(
-                &learning::dot::part_to_dot(model, pm),
+                &learning::graph::part_digraph(model, pm),
                 layout,
                 &format!("m{k}-"),
             )?),
@@ -74,7 +74,7 @@ pub fn pictures(
         let (drawn, note) = if size.states <= DRAWN_STATES && size.transitions <= DRAWN_TRANSITIONS
         {
             let picture = pictures::render(
-                &compiled.to_dot(&engine, model.time_unit),
+                &compiled.to_digraph(&engine, model.time_unit),
                 layout,
                 &format!("d{k}-"),
             )?;

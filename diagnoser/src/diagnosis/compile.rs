@@ -18,8 +18,8 @@
 //! check; a replay never needs it.
 
 use std::collections::{HashMap, VecDeque};
-use std::fmt::Write as _;
 
+use digraph::{Digraph, Edge as DrawnEdge, Node as DrawnNode, RankDirection};
 use petgraph::graph::{DiGraph, NodeIndex};
 
 use super::engine::Engine;
@@ -275,56 +275,75 @@ impl Compiled {
         }
     }
 
-    /// The automaton as Graphviz DOT: one node per diagnoser state, labelled with
-    /// its fault labels (and observed state), one edge per trigger with the clock
-    /// intervals it is taken in.
-    pub fn to_dot(&self, engine: &Engine, unit: crate::TimeUnit) -> String {
+    /// The automaton as a graph to draw (its DOT text is what `gardefou check
+    /// --dot` writes): one node per diagnoser state (`d0`, `d1`, …), labelled
+    /// with its fault labels and observed state, white when normal, salmon with one
+    /// other label, khaki with several; one edge per trigger between two states,
+    /// with the command-clock intervals it is taken in.
+    pub fn to_digraph(&self, engine: &Engine, unit: crate::TimeUnit) -> Digraph {
         let part = &engine.part;
         let mut states: Vec<u32> = self.graph.node_weights().map(|n| n.state).collect();
         states.sort_unstable();
         states.dedup();
         let id = |s: u32| states.binary_search(&s).unwrap_or(0);
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "digraph \"{}\" {{",
-            escape(&format!("diagnoser {}", part.name))
-        );
-        let _ = writeln!(
-            out,
-            "  rankdir=LR; node [shape=box, fontname=\"Helvetica\"];"
-        );
-        for &s in &states {
-            let st = engine.state(s);
-            let labels = engine.labels(st.labels);
-            let names: Vec<&str> = if labels.normal {
-                vec!["N"]
-            } else if labels.modes.is_empty() {
-                vec![super::verdict::UNKNOWN_LABEL]
-            } else {
-                labels
-                    .modes
-                    .iter()
-                    .map(|&m| part.modes[m as usize].label.as_str())
-                    .collect()
-            };
-            let colour = if labels.normal {
-                "white"
-            } else if names.len() == 1 {
-                "salmon"
-            } else {
-                "khaki"
-            };
-            let _ = writeln!(
-                out,
-                "  d{} [label=\"{{{}}}\\n{}\", style=filled, fillcolor={colour}];",
-                id(s),
-                escape(&names.join(", ")),
-                escape(&part.describe(st.obs))
-            );
+        let nodes = states
+            .iter()
+            .enumerate()
+            .map(|(i, &s)| {
+                let st = engine.state(s);
+                let labels = engine.labels(st.labels);
+                let names: Vec<&str> = if labels.normal {
+                    vec!["N"]
+                } else if labels.modes.is_empty() {
+                    vec![super::verdict::UNKNOWN_LABEL]
+                } else {
+                    labels
+                        .modes
+                        .iter()
+                        .map(|&m| part.modes[m as usize].label.as_str())
+                        .collect()
+                };
+                let colour = if labels.normal {
+                    "white"
+                } else if names.len() == 1 {
+                    "salmon"
+                } else {
+                    "khaki"
+                };
+                DrawnNode {
+                    id: format!("d{i}"),
+                    label: vec![format!("{{{}}}", names.join(", ")), part.describe(st.obs)],
+                    fill: Some(colour.to_string()),
+                    double_border: false,
+                }
+            })
+            .collect();
+        let edges = self
+            .drawn_edges(engine, unit)
+            .into_iter()
+            .map(|((a, b), label)| DrawnEdge {
+                from: id(a),
+                to: id(b),
+                label: vec![label],
+                bold: false,
+            })
+            .collect();
+        Digraph {
+            name: format!("diagnoser {}", part.name),
+            caption: Vec::new(),
+            rank_direction: RankDirection::LeftToRight,
+            rounded_nodes: false,
+            nodes,
+            edges,
         }
-        // Merge edges between the same states on the same trigger, with the
-        // command-clock intervals they are taken in.
+    }
+
+    /// The drawn edges, in order: between two diagnoser states, per trigger
+    /// (edges between the same states on the same trigger merged), labelled
+    /// with the trigger and the command-clock intervals it is taken in.
+    /// Deadlines that leave the state as it was are left out.
+    fn drawn_edges(&self, engine: &Engine, unit: crate::TimeUnit) -> Vec<((u32, u32), String)> {
+        let part = &engine.part;
         let mut edges: HashMap<(u32, u32, String), Vec<Span>> = HashMap::new();
         for e in self.graph.edge_indices() {
             let Some((a, b)) = self.graph.edge_endpoints(e) else {
@@ -352,53 +371,43 @@ impl Compiled {
         }
         let mut keys: Vec<_> = edges.into_iter().collect();
         keys.sort();
-        for ((a, b, label), mut spans) in keys {
-            spans.sort_unstable();
-            // Adjacent intervals merge.
-            let mut merged: Vec<Span> = Vec::new();
-            for (lo, hi) in spans {
-                match merged.last_mut() {
-                    Some(last) if last.1.is_some_and(|h| h >= lo) => {
-                        last.1 = match (last.1, hi) {
-                            (Some(x), Some(y)) => Some(x.max(y)),
-                            _ => None,
-                        };
+        keys.into_iter()
+            .map(|((a, b, label), mut spans)| {
+                spans.sort_unstable();
+                // Adjacent intervals merge.
+                let mut merged: Vec<Span> = Vec::new();
+                for (lo, hi) in spans {
+                    match merged.last_mut() {
+                        Some(last) if last.1.is_some_and(|h| h >= lo) => {
+                            last.1 = match (last.1, hi) {
+                                (Some(x), Some(y)) => Some(x.max(y)),
+                                _ => None,
+                            };
+                        }
+                        Some(last) if last.1.is_none() => {}
+                        _ => merged.push((lo, hi)),
                     }
-                    Some(last) if last.1.is_none() => {}
-                    _ => merged.push((lo, hi)),
                 }
-            }
-            let when: Vec<String> = merged
-                .iter()
-                .map(|(lo, hi)| match hi {
-                    Some(h) => format!("[{}, {}]", unit.format(*lo), unit.format(h - 1)),
-                    None => format!("[{}, ∞[", unit.format(*lo)),
-                })
-                .collect();
-            let text = if when.is_empty() {
-                label
-            } else {
-                format!("{label} {}", when.join(" "))
-            };
-            let _ = writeln!(
-                out,
-                "  d{} -> d{} [label=\"{}\"];",
-                id(a),
-                id(b),
-                escape(&text)
-            );
-        }
-        out.push_str("}\n");
-        out
+                let when: Vec<String> = merged
+                    .iter()
+                    .map(|(lo, hi)| match hi {
+                        Some(h) => format!("[{}, {}]", unit.format(*lo), unit.format(h - 1)),
+                        None => format!("[{}, ∞[", unit.format(*lo)),
+                    })
+                    .collect();
+                let text = if when.is_empty() {
+                    label
+                } else {
+                    format!("{label} {}", when.join(" "))
+                };
+                ((a, b), text)
+            })
+            .collect()
     }
 }
 
 /// A clock interval `[from, to[` (`to`: `None` for unbounded).
 type Span = (Time, Option<Time>);
-
-fn escape(s: &str) -> String {
-    s.replace('\\', "\\\\").replace('"', "\\\"")
-}
 
 /// The observed scans to explore: every one of at most `max_bits` edges, and
 /// every learned transition's scan, however many edges it has. The control

@@ -88,7 +88,7 @@ fn compiled_turntable_diagnoser_and_its_diagnosability() {
         size.states > 6 && size.transitions > size.states,
         "{size:?}"
     );
-    let dot = compiled.to_dot(&engine, TimeUnit::Ms);
+    let dot = compiled.to_digraph(&engine, TimeUnit::Ms).to_dot();
     assert!(dot.contains("{F2}") && dot.contains("{N}"), "{dot}");
     let verdicts = check(&mut engine, &compiled, TimeUnit::Ms);
     let of = |l: &str| verdicts.iter().find(|v| v.label == l).expect("verdict");
