@@ -394,9 +394,14 @@ fn learned_virtual_plc() -> &'static (tempfile::TempDir, std::path::PathBuf, std
 
 /// The virtual PLC at 4× for `duration`, with `fault` if any; its port.
 fn virtual_plc(model: &Path, duration: &str, fault: Option<&str>) -> (Child, u16) {
+    virtual_plc_at(4, model, duration, fault)
+}
+
+/// The virtual PLC at `speed`, and its port.
+fn virtual_plc_at(speed: u32, model: &Path, duration: &str, fault: Option<&str>) -> (Child, u16) {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_gardefou"));
     cmd.args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
-        .args(["--speed", "4", "--duration", duration])
+        .args(["--speed", &speed.to_string(), "--duration", duration])
         .arg("--model")
         .arg(model);
     if let Some(f) = fault {
@@ -423,6 +428,11 @@ fn virtual_plc(model: &Path, duration: &str, fault: Option<&str>) -> (Child, u16
 
 /// The monitor at 4× on `port` for `duration`.
 fn monitor_at_4x(plant: &Path, model: &Path, port: u16, duration: &str) -> Lines {
+    monitor_at(4, plant, model, port, duration)
+}
+
+/// The monitor at `speed` on `port` for `duration`.
+fn monitor_at(speed: u32, plant: &Path, model: &Path, port: u16, duration: &str) -> Lines {
     Lines::spawn(
         Command::new(env!("CARGO_BIN_EXE_gardefou"))
             .args(["monitor", "--plant"])
@@ -430,7 +440,7 @@ fn monitor_at_4x(plant: &Path, model: &Path, port: u16, duration: &str) -> Lines
             .arg("--model")
             .arg(model)
             .args(["--modbus", &format!("127.0.0.1:{port}")])
-            .args(["--speed", "4", "--duration", duration]),
+            .args(["--speed", &speed.to_string(), "--duration", duration]),
     )
 }
 
@@ -466,29 +476,67 @@ fn a_slow_network_gives_no_verdict_and_writes_no_flag() {
     .into_iter()
     .enumerate()
     {
-        let share = faults.delay_share;
-        let plc_time = format!("{}s", seconds * 4 + 30);
-        let (mut plc, port) = virtual_plc(model, &plc_time, None);
-        // The monitor joins a running plant, in the middle of a cycle.
-        std::thread::sleep(Duration::from_millis(1700 + 900 * run as u64));
-        let proxy = Proxy::start(([127, 0, 0, 1], port).into(), faults);
-        let mut mon = monitor_at_4x(plant, model, proxy.port(), &format!("{seconds}s"));
-        let status = mon.child.wait().expect("the monitor ends");
-        let _ = mon.wait_for("never printed", Duration::from_millis(200));
-        let err = mon.stderr();
-        assert!(status.success(), "{err}");
-        let stats = proxy.stats();
-        assert!(stats.delayed > 0, "{stats:?}");
-        assert!(
-            mon.seen.is_empty(),
-            "{share}: verdicts on a healthy plant: {:?}\n{err}",
-            mon.seen
-        );
-        assert!(err.contains("flags: none"), "{share}: {err}");
-        assert!(!err.contains("flags written to the PLC: def_"), "{err}");
-        let _ = plc.kill();
-        let _ = plc.wait();
+        // A run is evidence only if the simulated plant kept real time: on a
+        // loaded machine the virtual PLC can fall behind, and its edges then
+        // come late for any observer. Such a run is made again.
+        let mut attempts = 0;
+        while !slow_network_run(&plant, &model, seconds, run, faults.clone()) {
+            attempts += 1;
+            assert!(
+                attempts < 3,
+                "the virtual PLC fell behind real time in 3 runs"
+            );
+        }
     }
+}
+
+/// One run of [`a_slow_network_gives_no_verdict_and_writes_no_flag`]: `false`
+/// when the virtual PLC fell behind real time (the run proves nothing),
+/// `true` when it kept time and the monitor gave no verdict and no flag.
+fn slow_network_run(plant: &Path, model: &Path, seconds: u64, run: usize, faults: Faults) -> bool {
+    let share = faults.delay_share;
+    // In real time: a scheduling hiccup of this machine (15 ms seen on an idle
+    // one) is then 15 ms of the plant's time, not 60 as at 4×.
+    let plc_time = format!("{}s", seconds + 30);
+    let (mut plc, port) = virtual_plc_at(1, model, &plc_time, None);
+    // The monitor joins a running plant, in the middle of a cycle.
+    std::thread::sleep(Duration::from_millis(1700 + 900 * run as u64));
+    let proxy = Proxy::start(([127, 0, 0, 1], port).into(), faults);
+    let mut mon = monitor_at(1, plant, model, proxy.port(), &format!("{seconds}s"));
+    let status = mon.child.wait().expect("the monitor ends");
+    let _ = mon.wait_for("never printed", Duration::from_millis(200));
+    let err = mon.stderr();
+    // Two PLC scans of lag are within what the model's guards allow for.
+    let lag = most_late_ms(&mut plc);
+    if lag > 20.0 {
+        eprintln!("{share}: the virtual PLC fell {lag} ms behind real time; the run is made again");
+        return false;
+    }
+    assert!(status.success(), "{err}");
+    let stats = proxy.stats();
+    assert!(stats.delayed > 0, "{stats:?}");
+    assert!(
+        mon.seen.is_empty(),
+        "{share}: verdicts on a healthy plant: {:?}\n{err}",
+        mon.seen
+    );
+    assert!(err.contains("flags: none"), "{share}: {err}");
+    assert!(!err.contains("flags written to the PLC: def_"), "{err}");
+    true
+}
+
+/// Stops the virtual PLC and reads, from its summary, how far behind real
+/// time it fell at worst, in simulated milliseconds.
+fn most_late_ms(plc: &mut Child) -> f64 {
+    // SAFETY: signals the child this test started.
+    unsafe { libc::kill(plc.id() as i32, libc::SIGTERM) };
+    let mut out = String::new();
+    let stdout = plc.stdout.as_mut().expect("stdout");
+    stdout.read_to_string(&mut out).expect("the summary");
+    let _ = plc.wait();
+    let summary: serde_json::Value = serde_json::from_str(out.trim())
+        .unwrap_or_else(|e| panic!("the virtual PLC's summary {out:?}: {e}"));
+    summary["most_late_ms"].as_f64().expect("most_late_ms")
 }
 
 /// Through the same slow network, C4 stuck at 1 from 60 s: F2 is labelled and

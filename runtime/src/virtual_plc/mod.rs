@@ -233,6 +233,9 @@ struct Summary {
     flags: Vec<(String, Time)>,
     fallback_scans: u64,
     late_scans: u64,
+    /// The latest a scan came, in simulated time: how far the plant fell
+    /// behind real time at worst (a loaded machine).
+    most_late: Time,
     interrupted: bool,
 }
 
@@ -273,6 +276,7 @@ fn scan_loop(
     let period = Duration::try_from_secs_f64(period_s).unwrap_or(Duration::MAX);
     let mut raised: Vec<(String, Time)> = Vec::new();
     let mut late_scans = 0u64;
+    let mut most_late = Duration::ZERO;
     let mut delivered_at_flag = 0u64;
     let mut interrupted = false;
     let mut end = 0;
@@ -295,7 +299,9 @@ fn scan_loop(
             interrupted = true;
             break;
         }
-        if Instant::now().saturating_duration_since(due) > period {
+        let late = Instant::now().saturating_duration_since(due);
+        most_late = most_late.max(late);
+        if late > period {
             late_scans += 1;
         }
         {
@@ -342,6 +348,7 @@ fn scan_loop(
         flags: raised,
         fallback_scans: plc.fallback_scans(),
         late_scans,
+        most_late: (most_late.as_secs_f64() * speed * 1e9) as Time,
         interrupted,
     })
 }
@@ -450,6 +457,7 @@ fn print_summary(summary: &Summary) -> Result<(), Failure> {
         flags: Vec<FlagLine<'a>>,
         fallback_scans: u64,
         late_scans: u64,
+        most_late_ms: f64,
         interrupted: bool,
     }
     #[derive(Serialize)]
@@ -481,6 +489,7 @@ fn print_summary(summary: &Summary) -> Result<(), Failure> {
             .collect(),
         fallback_scans: summary.fallback_scans,
         late_scans: summary.late_scans,
+        most_late_ms: summary.most_late as f64 / 1e6,
         interrupted: summary.interrupted,
     };
     let json = serde_json::to_string(&line)
