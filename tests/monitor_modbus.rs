@@ -480,7 +480,7 @@ fn a_slow_network_gives_no_verdict_and_writes_no_flag() {
         // loaded machine the virtual PLC can fall behind, and its edges then
         // come late for any observer. Such a run is made again.
         let mut attempts = 0;
-        while !slow_network_run(&plant, &model, seconds, run, faults.clone()) {
+        while !slow_network_run(plant, model, seconds, run, faults.clone()) {
             attempts += 1;
             assert!(
                 attempts < 3,
