@@ -8,7 +8,7 @@
 //! regular file is never copied.
 
 use std::collections::HashMap;
-use std::fs::File;
+use std::fs::{self, File};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock, PoisonError};
@@ -33,12 +33,14 @@ pub(crate) struct Spool {
 impl Spool {
     /// Copies the log at `path` if it is not a regular file; `None` if it is.
     pub(crate) fn of(path: &Path) -> Result<Option<Spool>, Located> {
+        // A regular file (or one that cannot be seen: its reader says why) is
+        // read in place; only the others are opened here.
+        match fs::metadata(path) {
+            Ok(meta) if !meta.is_file() => {}
+            _ => return Ok(None),
+        }
         let opened = File::open(path);
         let mut file = opened.map_err(|e| file_error(path, format!("cannot open the log: {e}")))?;
-        let regular = file.metadata().map(|m| m.is_file());
-        if regular.map_err(|e| file_error(path, format!("cannot read the log: {e}")))? {
-            return Ok(None);
-        }
         let copy = tempfile::Builder::new()
             .prefix(".gardefou-log-")
             .tempfile()

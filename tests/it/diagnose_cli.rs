@@ -233,30 +233,22 @@ fn check_reports_diagnosability_sizes_and_renders_with_graphviz() {
 #[test]
 fn check_reads_libfaudes_generators() {
     let fx = root().join("diagnoser/tests/fixtures/faudes");
-    let o = gardefou(&[
-        "check",
-        "--gen",
-        fx.join("diag_system_4.gen").to_str().expect("utf-8"),
-        "--failures",
-        fx.join("diag_failure_typemap_4.txt")
-            .to_str()
-            .expect("utf-8"),
-    ]);
+    let (generator, map) = (
+        fx.join("diag_system_4.gen"),
+        fx.join("diag_failure_typemap_4.txt"),
+    );
+    let check = |extra: &[&str]| {
+        let mut args = vec!["check", "--gen", generator.to_str().expect("utf-8")];
+        args.extend(["--failures", map.to_str().expect("utf-8")]);
+        args.extend_from_slice(extra);
+        gardefou(&args)
+    };
+    let o = check(&[]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("F1: not diagnosable"), "{text}");
     // A verifier larger than allowed gives up in one line.
-    let o = gardefou(&[
-        "check",
-        "--gen",
-        fx.join("diag_system_4.gen").to_str().expect("utf-8"),
-        "--failures",
-        fx.join("diag_failure_typemap_4.txt")
-            .to_str()
-            .expect("utf-8"),
-        "--max-states",
-        "3",
-    ]);
+    let o = check(&["--max-states", "3"]);
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(

@@ -69,8 +69,8 @@ fn contained<T>(path: &Path, call: impl FnOnce() -> Result<T, Located>) -> Resul
 }
 
 /// Checks what polars trusts before it decodes: the magic bytes at both ends,
-/// and a footer that fits in the file.
-fn check_frame(path: &Path) -> Result<(), Located> {
+/// and a footer that fits in the file; the file's size.
+fn check_frame(path: &Path) -> Result<u64, Located> {
     use std::io::{Read, Seek, SeekFrom};
     let fail = |why: &str| failure(path, &format!("not a Parquet file: {why}"));
     let mut file = open_file(path)?;
@@ -95,17 +95,13 @@ fn check_frame(path: &Path) -> Result<(), Located> {
             "its footer says it is {footer} bytes long, in a file of {size}"
         )));
     }
-    Ok(())
+    Ok(size)
 }
 
 /// Checks the footer's byte ranges and counts, which polars' streaming reader
-/// uses unchecked: every row group and column chunk within the file, no
-/// negative count.
-fn check_footer(path: &Path) -> Result<(), Located> {
-    let size = open_file(path)?
-        .metadata()
-        .map_err(|e| failure(path, &e.to_string()))?
-        .len();
+/// uses unchecked: every row group and column chunk within the file of `size`
+/// bytes, no negative count.
+fn check_footer(path: &Path, size: u64) -> Result<(), Located> {
     contained(path, || {
         let mut reader = ParquetReader::new(open_file(path)?);
         let footer = reader
@@ -135,8 +131,8 @@ fn check_footer(path: &Path) -> Result<(), Located> {
 
 /// The schema of a Parquet file, from its footer.
 fn schema(path: &Path) -> Result<SchemaRef, Located> {
-    check_frame(path)?;
-    check_footer(path)?;
+    let size = check_frame(path)?;
+    check_footer(path, size)?;
     contained(path, || {
         let failed = |e: PolarsError| failure(path, &e.to_string());
         let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;

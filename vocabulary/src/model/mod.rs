@@ -317,11 +317,6 @@ impl Window {
     pub fn admits(&self, elapsed: Time) -> bool {
         self.lo <= elapsed && elapsed <= self.hi
     }
-
-    /// Whether, `elapsed` after its clock's origin, the transition is late.
-    pub fn missed(&self, elapsed: Time) -> bool {
-        elapsed > self.hi
-    }
 }
 
 /// The temporal estimates of a part's sensors after one actuator state is
