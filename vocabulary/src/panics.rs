@@ -22,7 +22,7 @@ pub fn install_hook() {
     std::panic::set_hook(Box::new(|info| {
         // `main` reports its own panics when it catches them.
         let main = std::thread::current().name() == Some("main");
-        if main || CONTAINED.load(Ordering::SeqCst) > 0 {
+        if main || expected() {
             return;
         }
         let location = info
@@ -48,6 +48,24 @@ pub fn message(payload: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
+/// Whether a [`Containment`] is alive on some thread: a panic now is one its
+/// catcher reports.
+pub fn contained() -> bool {
+    CONTAINED.load(Ordering::SeqCst) > 0
+}
+
+/// Whether a panic on this thread, now, is reported by someone else: a
+/// [`Containment`] is alive, or this is one of polars' pool threads. polars
+/// turns a panic of its pool into the error of the query that ran it, which
+/// the log layer reports; one task may panic after that query has already
+/// failed and its containment ended.
+pub fn expected() -> bool {
+    let pool = std::thread::current()
+        .name()
+        .is_some_and(|name| name.starts_with("async-executor") || name.starts_with("polars"));
+    contained() || pool
+}
+
 /// While alive, panics are not printed: their catcher reports them.
 #[must_use = "panics are contained only while this lives"]
 pub struct Containment(());
@@ -63,5 +81,28 @@ impl Containment {
 impl Drop for Containment {
     fn drop(&mut self) {
         CONTAINED.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn panics_on_polars_threads_or_under_a_containment_are_expected() {
+        let on = |name: &str| {
+            let name = name.to_string();
+            std::thread::Builder::new()
+                .name(name)
+                .spawn(expected)
+                .expect("a thread")
+                .join()
+                .expect("joined")
+        };
+        assert!(on("async-executor-1") && on("polars-3"));
+        assert!(!on("gardefou-read") || contained());
+        let quiet = Containment::start();
+        assert!(on("gardefou-read"));
+        drop(quiet);
     }
 }

@@ -42,6 +42,7 @@ use crate::IngestOptions;
 use crate::rows::{CellKind, Records, file_error, open_file};
 
 mod archive;
+mod pages;
 
 pub use archive::write_intervals_parquet;
 
@@ -69,7 +70,8 @@ fn contained<T>(path: &Path, call: impl FnOnce() -> Result<T, Located>) -> Resul
 }
 
 /// Checks what polars trusts before it decodes: the magic bytes at both ends,
-/// and a footer that fits in the file; the file's size.
+/// a footer that fits in the file, and no list in it longer than the footer
+/// ([`pages::check_footer`]); the file's size.
 fn check_frame(path: &Path) -> Result<u64, Located> {
     use std::io::{Read, Seek, SeekFrom};
     let fail = |why: &str| failure(path, &format!("not a Parquet file: {why}"));
@@ -95,15 +97,26 @@ fn check_frame(path: &Path) -> Result<u64, Located> {
             "its footer says it is {footer} bytes long, in a file of {size}"
         )));
     }
+    let mut bytes = vec![0u8; footer as usize];
+    file.seek(SeekFrom::End(-8 - footer as i64))
+        .and_then(|_| file.read_exact(&mut bytes))
+        .map_err(|e| failure(path, &format!("cannot read its footer: {e}")))?;
+    pages::check_footer(&bytes)
+        .map_err(|why| failure(path, &format!("a damaged footer: {why}")))?;
     Ok(size)
 }
 
 /// Checks the footer's byte ranges and counts, which polars' streaming reader
 /// uses unchecked: every row group and column chunk within the file of `size`
-/// bytes, no negative count.
+/// bytes, no negative count; then the page headers of every column chunk
+/// ([`pages`]), whose counts polars trusts too.
 fn check_footer(path: &Path, size: u64) -> Result<(), Located> {
     contained(path, || {
-        let mut reader = ParquetReader::new(open_file(path)?);
+        let file = open_file(path)?;
+        let copy = file
+            .try_clone()
+            .map_err(|e| failure(path, &e.to_string()))?;
+        let mut reader = ParquetReader::new(copy);
         let footer = reader
             .get_metadata()
             .map_err(|e| failure(path, &e.to_string()))?;
@@ -123,6 +136,14 @@ fn check_footer(path: &Path, size: u64) -> Result<(), Located> {
                         "a column chunk of row group {k} spans bytes {range:?} of a file of {size}"
                     ));
                 }
+                pages::check_chunk(&file, range.start, range.end, chunk.num_values()).map_err(
+                    |why| {
+                        failure(
+                            path,
+                            &format!("a damaged column chunk in row group {k}: {why}"),
+                        )
+                    },
+                )?;
             }
         }
         Ok(())

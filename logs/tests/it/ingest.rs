@@ -267,7 +267,7 @@ fn every_form_reads_back_the_same_run() {
     );
     expected.push((rfc_parquet.clone(), LogFormat::EventsParquet));
 
-    // Float times in ms; booleans and 0/1 integers as values.
+    // Float times in ms; booleans and 0/1 integers of every width as values.
     let scans_parquet = dir.path().join("scans.parquet");
     let mut columns = vec![Column::new(
         "t".into(),
@@ -278,19 +278,17 @@ fn every_form_reads_back_the_same_run() {
     )];
     for (id, signal) in signals.iter() {
         let i = id.index();
-        let column = if i % 2 == 0 {
-            Column::new(
-                signal.name.as_str().into(),
-                all_scans.iter().map(|s| s.1[i]).collect::<Vec<bool>>(),
-            )
-        } else {
-            Column::new(
-                signal.name.as_str().into(),
-                all_scans
-                    .iter()
-                    .map(|s| i32::from(s.1[i]))
-                    .collect::<Vec<i32>>(),
-            )
+        // Values as booleans or as integers of every width a writer may pick.
+        let name = signal.name.as_str().into();
+        let bits = all_scans.iter().map(|s| s.1[i]);
+        let column = match i % 7 {
+            0 => Column::new(name, bits.collect::<Vec<bool>>()),
+            1 => Column::new(name, bits.map(i8::from).collect::<Vec<i8>>()),
+            2 => Column::new(name, bits.map(u8::from).collect::<Vec<u8>>()),
+            3 => Column::new(name, bits.map(i16::from).collect::<Vec<i16>>()),
+            4 => Column::new(name, bits.map(u16::from).collect::<Vec<u16>>()),
+            5 => Column::new(name, bits.map(i32::from).collect::<Vec<i32>>()),
+            _ => Column::new(name, bits.map(i64::from).collect::<Vec<i64>>()),
         };
         columns.push(column);
     }
@@ -1090,4 +1088,31 @@ fn read_all(path: &Path, plant: &Plant) -> Result<(), Located> {
         batch?;
     }
     Ok(())
+}
+
+/// Found by the `parquet` fuzz target, each made polars reserve more memory
+/// than there is and abort the process, which no panic handler catches: a data
+/// page whose header says it holds -33 values (2^61 bytes for their validity),
+/// a footer whose list of row groups says it is longer than the footer (47 GB).
+/// The footer's structure and the page headers are now checked first.
+#[test]
+fn counts_polars_would_reserve_memory_for_are_checked_first() {
+    let cases = [
+        (
+            "negative_page_values.parquet",
+            "a damaged column chunk in row group 3: page 0 at byte 1215: a negative number of values, -33",
+        ),
+        (
+            "list_longer_than_footer.parquet",
+            "a damaged footer: cut short, or a list longer than the footer",
+        ),
+    ];
+    for (name, message) in cases {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/parquet")
+            .join(name);
+        let e = first_error(&path, &turntable(), &options(BATCH));
+        let expected = format!("cannot read the Parquet log: {message}");
+        assert!(e.to_string().ends_with(&expected), "{name}: {e}");
+    }
 }
