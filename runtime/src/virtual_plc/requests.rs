@@ -50,20 +50,25 @@ fn check(frame: &[u8]) -> Result<(), String> {
         ));
     }
     let pdu = &frame[HEADER + 1..];
-    let (function, count_at) = (pdu[0], 5);
-    if !matches!(function, 0x0F | 0x10) {
-        return Ok(());
-    }
-    let (Some(quantity), Some(&count)) = (pdu.get(3..5), pdu.get(count_at)) else {
+    // Where the byte count is, and how many values it counts: the requests
+    // whose counts tokio-modbus trusts.
+    let (function, count_at, quantity_at, per_value) = match pdu[0] {
+        0x0F => (0x0F, 5, 3, Bits),
+        0x10 => (0x10, 5, 3, Words),
+        // Read/Write Multiple Registers: the write quantity is the second.
+        0x17 => (0x17, 9, 7, Words),
+        _ => return Ok(()),
+    };
+    let (Some(quantity), Some(&count)) = (pdu.get(quantity_at..quantity_at + 2), pdu.get(count_at))
+    else {
         return Err(format!(
             "function {function} without its quantity and byte count"
         ));
     };
     let quantity = usize::from(u16::from_be_bytes([quantity[0], quantity[1]]));
-    let needed = if function == 0x0F {
-        quantity.div_ceil(8)
-    } else {
-        2 * quantity
+    let needed = match per_value {
+        Bits => quantity.div_ceil(8),
+        Words => 2 * quantity,
     };
     let count = usize::from(count);
     if count != needed || pdu.len() != count_at + 1 + count {
@@ -74,6 +79,13 @@ fn check(frame: &[u8]) -> Result<(), String> {
     }
     Ok(())
 }
+
+/// What a request's values are written as.
+enum Width {
+    Bits,
+    Words,
+}
+use Width::{Bits, Words};
 
 impl<S: AsyncRead + Unpin> AsyncRead for Checked<S> {
     fn poll_read(
@@ -136,9 +148,10 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for Checked<S> {
 mod tests {
     use super::check;
 
-    /// A Write Multiple Coils request for `quantity` coils with `data`.
-    fn fc15(quantity: u16, count: u8, data: &[u8]) -> Vec<u8> {
-        let mut pdu = vec![1, 0x0F, 0, 0];
+    /// A request of `head`'s function: `head` (unit, function, fields), then
+    /// a write `quantity`, a byte `count` and `data`, in an MBAP frame.
+    fn request(head: &[u8], quantity: u16, count: u8, data: &[u8]) -> Vec<u8> {
+        let mut pdu = head.to_vec();
         pdu.extend(quantity.to_be_bytes());
         pdu.push(count);
         pdu.extend(data);
@@ -146,6 +159,11 @@ mod tests {
         frame.extend(u16::try_from(pdu.len()).expect("short").to_be_bytes());
         frame.extend(pdu);
         frame
+    }
+
+    /// A Write Multiple Coils request for `quantity` coils with `data`.
+    fn fc15(quantity: u16, count: u8, data: &[u8]) -> Vec<u8> {
+        request(&[1, 0x0F, 0, 0], quantity, count, data)
     }
 
     #[test]
@@ -156,5 +174,18 @@ mod tests {
         // Reads are passed as they are.
         let read = [0, 1, 0, 0, 0, 6, 1, 0x01, 0, 0, 0, 8];
         assert_eq!(check(&read), Ok(()));
+    }
+
+    /// Found by the `modbus_requests` fuzz target: a Read/Write Multiple
+    /// Registers whose write quantity doubles past 16 bits made tokio-modbus
+    /// overflow (a panic where overflow is checked).
+    #[test]
+    fn a_read_write_of_registers_needs_two_bytes_per_register() {
+        let frame = |quantity, count, data: &[u8]| {
+            request(&[1, 0x17, 0, 0, 0, 1, 0, 0], quantity, count, data)
+        };
+        assert_eq!(check(&frame(2, 4, &[0, 1, 0, 2])), Ok(()));
+        assert!(check(&frame(0x8000, 0, &[])).is_err());
+        assert!(check(&frame(2, 4, &[0, 1])).is_err());
     }
 }
