@@ -1162,14 +1162,28 @@ pub fn event_diagnosability_within(
     f: &FailureTypes,
     budget: usize,
 ) -> Result<EventDiagnosability, TooLarge> {
+    event_diagnosability_explored(g, f, budget, BREADTH_FIRST)
+}
+
+/// [`event_diagnosability_within`], its twin plants explored whole and
+/// breadth-first up to `breadth_first` nodes and edges (counterexamples with
+/// the shortest stems), depth-first past that, stopping at the first
+/// counterexample. The verdicts do not depend on `breadth_first`.
+pub fn event_diagnosability_explored(
+    g: &Generator,
+    f: &FailureTypes,
+    budget: usize,
+    breadth_first: usize,
+) -> Result<EventDiagnosability, TooLarge> {
     let sys = System::new(g);
     let assumptions = assumptions(g, &sys, f);
     let mut types: Vec<TypeVerdict> = Vec::new();
     for (name, failures) in &f.types {
-        let counterexample = verify(g, &sys, failures, budget).map_err(|reached| TooLarge {
-            failure_type: name.clone(),
-            reached,
-        })?;
+        let counterexample =
+            verify(g, &sys, failures, budget, breadth_first).map_err(|reached| TooLarge {
+                failure_type: name.clone(),
+                reached,
+            })?;
         types.push(TypeVerdict {
             failure_type: name.clone(),
             diagnosable: counterexample.is_none(),
@@ -1358,6 +1372,7 @@ fn verify(
     sys: &System,
     failures: &[String],
     budget: usize,
+    breadth_first: usize,
 ) -> Result<Option<Counterexample>, usize> {
     let failure: Vec<bool> = g.events.iter().map(|e| failures.contains(e)).collect();
     // Only unobservable failure events set the label (as in libFAUDES): without
@@ -1366,121 +1381,329 @@ fn verify(
         return Ok(None);
     }
     let mut size = 0usize;
-    let mut grow = |by: usize| {
-        size = size.saturating_add(by);
-        if size > budget { Err(size) } else { Ok(()) }
+    let grow = |size: &mut usize, by: usize| {
+        *size = size.saturating_add(by);
+        if *size > budget { Err(*size) } else { Ok(()) }
     };
 
-    let (nodes, edges, starts) = observation_automaton(g, sys, &failure, &mut grow)?;
+    let (nodes, edges, starts) =
+        observation_automaton(g, sys, &failure, &mut |by| grow(&mut size, by))?;
 
-    // 2. Its twin plant (libFAUDES's G_d = G_o || G_o): pairs of nodes moving on
-    //    the same observable event, explored up to the pairs where both runs
-    //    have failed. Twin edges remember which edges they pair.
-    let mut pairs: Vec<(usize, usize)> = Vec::new();
-    let mut pair_of: HashMap<(usize, usize), usize> = HashMap::new();
-    let mut twin: Vec<Vec<(usize, usize, usize)>> = Vec::new();
-    let mut parent: Vec<Option<(usize, usize)>> = Vec::new();
-    for &a in &starts {
-        for &b in &starts {
-            pair_of.insert((a, b), pairs.len());
-            pairs.push((a, b));
-            parent.push(None);
+    // 2. Its twin plant (libFAUDES's G_d = G_o || G_o), breadth-first while
+    //    it is small; depth-first, stopping at the first counterexample, once
+    //    it is not.
+    let mut twin = Twin::new(&starts);
+    while twin.next < twin.pairs.len() {
+        let added = twin.expand(&nodes, &edges);
+        grow(&mut size, 1 + added)?;
+        if size > breadth_first && twin.next < twin.pairs.len() {
+            drop(twin);
+            let mut size = size_of_observation(&edges);
+            let lasso = depth_first_lasso(&nodes, &edges, &starts, &mut |by| grow(&mut size, by))?;
+            let lasso = lasso.map(|lasso| shorter_stem(&nodes, &edges, &starts, lasso, budget));
+            return Ok(lasso.map(|lasso| spell_out(g, sys, &failure, &nodes, &edges, &lasso)));
         }
     }
-    let mut next = 0;
-    while next < pairs.len() {
-        let (a, b) = pairs[next];
+    Ok(twin
+        .lasso(&nodes)
+        .map(|lasso| spell_out(g, sys, &failure, &nodes, &edges, &lasso)))
+}
+
+/// The size of the verifier (nodes and edges of the observation automaton and
+/// of the twin plant) up to which the twin plant is explored whole,
+/// breadth-first: the counterexample found then has the
+/// shortest stem of all. Past it, a depth-first search stops at the first
+/// indeterminate cycle: on products of many components, the whole twin
+/// plant is far larger than the way to one of its cycles.
+pub const BREADTH_FIRST: usize = 1 << 16;
+
+/// The observation automaton's nodes and edges, which the budget counts.
+fn size_of_observation(edges: &[Vec<ObsEdge>]) -> usize {
+    edges.iter().map(|out| 1 + out.len()).sum()
+}
+
+/// A counterexample as the twin plant shows it: its steps (a pair of
+/// observation nodes, the edge of each taken), the loop starting at step
+/// `cycle_from` and going back to its first pair.
+#[derive(Debug)]
+struct Lasso {
+    steps: Vec<((usize, usize), usize, usize)>,
+    cycle_from: usize,
+}
+
+/// A lasso of the twin plant, found depth-first. Every cycle of pairs
+/// with different labels (an indeterminate cycle) lies in a strongly connected
+/// component of such pairs (a label only goes from "no failure yet" to
+/// "failed", and pairs where both runs have failed are not expanded), and a
+/// depth-first search meets a back edge in every such component: the first
+/// back edge to a pair whose labels differ closes one. None if there is none;
+/// `Err` with the size reached once the budget is spent.
+fn depth_first_lasso(
+    nodes: &[(usize, bool)],
+    edges: &[Vec<ObsEdge>],
+    starts: &[usize],
+    grow: &mut impl FnMut(usize) -> Result<(), usize>,
+) -> Result<Option<Lasso>, usize> {
+    /// A pair on the search's path: its successors and how many were tried.
+    struct Frame {
+        pair: (usize, usize),
+        next: Vec<((usize, usize), usize, usize)>,
+        tried: usize,
+    }
+    let successors = |(a, b): (usize, usize)| -> Vec<((usize, usize), usize, usize)> {
+        if nodes[a].1 && nodes[b].1 {
+            return Vec::new();
+        }
+        (same_event_edges(&edges[a], &edges[b]).into_iter())
+            .map(|(ia, jb)| ((edges[a][ia].to, edges[b][jb].to), ia, jb))
+            .collect()
+    };
+    // On the path: its depth; done: `usize::MAX`.
+    let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
+    for &root in starts
+        .iter()
+        .flat_map(|a| starts.iter().map(move |b| (*a, *b)))
+        .collect::<Vec<_>>()
+        .iter()
+    {
+        if seen.contains_key(&root) {
+            continue;
+        }
+        let mut path = vec![Frame {
+            pair: root,
+            next: successors(root),
+            tried: 0,
+        }];
+        seen.insert(root, 0);
+        while let Some(top) = path.last_mut() {
+            let Some(&(to, _, _)) = top.next.get(top.tried) else {
+                seen.insert(top.pair, usize::MAX);
+                path.pop();
+                continue;
+            };
+            top.tried += 1;
+            match seen.get(&to) {
+                Some(&depth) if depth != usize::MAX => {
+                    if nodes[to.0].1 != nodes[to.1].1 {
+                        let steps = path.iter().map(|f| {
+                            let (_, ia, jb) = f.next[f.tried - 1];
+                            (f.pair, ia, jb)
+                        });
+                        return Ok(Some(Lasso {
+                            steps: steps.collect(),
+                            cycle_from: depth,
+                        }));
+                    }
+                }
+                Some(_) => {}
+                None => {
+                    let next = successors(to);
+                    grow(1 + next.len())?;
+                    seen.insert(to, path.len());
+                    path.push(Frame {
+                        pair: to,
+                        next,
+                        tried: 0,
+                    });
+                }
+            }
+        }
+    }
+    Ok(None)
+}
+
+/// The lasso with the shortest way into its loop: a breadth-first search
+/// from the initial pairs to the first pair of the loop met, the loop then
+/// turned to start there. The lasso as it was if the search would pass
+/// `budget` pairs and edges.
+fn shorter_stem(
+    nodes: &[(usize, bool)],
+    edges: &[Vec<ObsEdge>],
+    starts: &[usize],
+    lasso: Lasso,
+    budget: usize,
+) -> Lasso {
+    let cycle = &lasso.steps[lasso.cycle_from..];
+    let on_loop: HashMap<(usize, usize), usize> = cycle
+        .iter()
+        .enumerate()
+        .map(|(k, step)| (step.0, k))
+        .collect();
+    let mut twin = Twin::new(starts);
+    let mut size = 0usize;
+    let mut looked = 0;
+    loop {
+        while looked < twin.pairs.len() {
+            if let Some(&k) = on_loop.get(&twin.pairs[looked]) {
+                let mut stem = Vec::new();
+                let mut p = looked;
+                while let Some((from, e)) = twin.parent[p] {
+                    let (_, ia, jb) = twin.edges[from][e];
+                    stem.push((twin.pairs[from], ia, jb));
+                    p = from;
+                }
+                stem.reverse();
+                let cycle_from = stem.len();
+                stem.extend(cycle[k..].iter().chain(&cycle[..k]).copied());
+                return Lasso {
+                    steps: stem,
+                    cycle_from,
+                };
+            }
+            looked += 1;
+        }
+        if twin.next == twin.pairs.len() || size > budget {
+            return lasso;
+        }
+        size += 1 + twin.expand(nodes, edges);
+    }
+}
+
+/// The counterexample a lasso of the twin plant shows: both runs, the
+/// faulty one first, with their unobservable events, and what they show.
+fn spell_out(
+    g: &Generator,
+    sys: &System,
+    failure: &[bool],
+    nodes: &[(usize, bool)],
+    edges: &[Vec<ObsEdge>],
+    lasso: &Lasso,
+) -> Counterexample {
+    let ((a0, _), _, _) = lasso.steps[lasso.cycle_from];
+    let faulty_first = nodes[a0].1;
+    let (mut faulty, mut normal, mut observed) = (Vec::new(), Vec::new(), Vec::new());
+    for &((a, b), ia, jb) in &lasso.steps {
+        let (edge_a, edge_b) = (&edges[a][ia], &edges[b][jb]);
+        let ((from_f, ef), (from_n, en)) = if faulty_first {
+            ((a, edge_a), (b, edge_b))
+        } else {
+            ((b, edge_b), (a, edge_a))
+        };
+        let run = |from: usize, edge: &ObsEdge| run_of(sys, failure, nodes, from, edge);
+        faulty.extend(run(from_f, ef).iter().map(|&e| g.events[e].clone()));
+        normal.extend(run(from_n, en).iter().map(|&e| g.events[e].clone()));
+        observed.push(g.events[ef.event].clone());
+    }
+    Counterexample {
+        faulty,
+        normal,
+        observed,
+        cycle_from: lasso.cycle_from,
+    }
+}
+
+/// The twin plant explored so far: pairs of observation nodes moving on the
+/// same observable event, breadth-first, each with the edges that leave it
+/// once expanded. Twin edges remember which observation edges they pair.
+struct Twin {
+    pairs: Vec<(usize, usize)>,
+    pair_of: HashMap<(usize, usize), usize>,
+    /// `edges[p]` for the expanded pairs `p < next`: `(to, edge of a, edge of b)`.
+    edges: Vec<Vec<(usize, usize, usize)>>,
+    /// How each pair was first reached: the pair before and its edge number.
+    parent: Vec<Option<(usize, usize)>>,
+    next: usize,
+}
+
+impl Twin {
+    fn new(starts: &[usize]) -> Twin {
+        let mut twin = Twin {
+            pairs: Vec::new(),
+            pair_of: HashMap::new(),
+            edges: Vec::new(),
+            parent: Vec::new(),
+            next: 0,
+        };
+        for &a in starts {
+            for &b in starts {
+                twin.pair_of.insert((a, b), twin.pairs.len());
+                twin.pairs.push((a, b));
+                twin.parent.push(None);
+            }
+        }
+        twin
+    }
+
+    /// Expands the next pair; how many edges leave it.
+    fn expand(&mut self, nodes: &[(usize, bool)], edges: &[Vec<ObsEdge>]) -> usize {
+        let from = self.next;
+        let (a, b) = self.pairs[from];
         let mut out = Vec::new();
         // Labels only go from "no failure yet" to "failed": from a pair where
         // both runs have failed, every pair reached has too, and none of them
         // lies on an indeterminate cycle. Left unexplored, they cost nothing;
         // the other pairs keep their breadth-first order.
-        if nodes[a].1 && nodes[b].1 {
-            twin.push(out);
-            next += 1;
-            continue;
-        }
-        let (ea, eb) = (&edges[a], &edges[b]);
-        let (mut i, mut j) = (0, 0);
-        while i < ea.len() && j < eb.len() {
-            let event = ea[i].event;
-            if event < eb[j].event {
-                i += 1;
-            } else if event > eb[j].event {
-                j += 1;
-            } else {
-                let i_end = i + ea[i..].iter().take_while(|e| e.event == event).count();
-                let j_end = j + eb[j..].iter().take_while(|e| e.event == event).count();
-                for (ia, edge_a) in ea.iter().enumerate().take(i_end).skip(i) {
-                    for (jb, edge_b) in eb.iter().enumerate().take(j_end).skip(j) {
-                        let target = (edge_a.to, edge_b.to);
-                        let t = match pair_of.get(&target) {
-                            Some(&t) => t,
-                            None => {
-                                let t = pairs.len();
-                                pair_of.insert(target, t);
-                                pairs.push(target);
-                                // Breadth-first: the first way in is a shortest one.
-                                parent.push(Some((next, out.len())));
-                                t
-                            }
-                        };
-                        out.push((t, ia, jb));
+        if !(nodes[a].1 && nodes[b].1) {
+            for (ia, jb) in same_event_edges(&edges[a], &edges[b]) {
+                let target = (edges[a][ia].to, edges[b][jb].to);
+                let t = match self.pair_of.get(&target) {
+                    Some(&t) => t,
+                    None => {
+                        let t = self.pairs.len();
+                        self.pair_of.insert(target, t);
+                        self.pairs.push(target);
+                        // Breadth-first: the first way in is a shortest one.
+                        self.parent.push(Some((from, out.len())));
+                        t
                     }
-                }
-                i = i_end;
-                j = j_end;
+                };
+                out.push((t, ia, jb));
             }
         }
-        grow(1 + out.len())?;
-        twin.push(out);
-        next += 1;
+        let added = out.len();
+        self.edges.push(out);
+        self.next += 1;
+        added
     }
 
-    // 3. An indeterminate cycle: a cycle of pairs whose labels differ. Pairs are
-    //    numbered breadth-first, so the first such pair found has a shortest stem.
-    let uncertain: Vec<bool> = pairs
-        .iter()
-        .map(|&(a, b)| nodes[a].1 != nodes[b].1)
-        .collect();
-    let component = cyclic_components(&twin, &uncertain);
-    let Some(entry) = (0..pairs.len()).find(|&p| component[p].is_some()) else {
-        return Ok(None);
-    };
-
-    let mut stem = Vec::new();
-    let mut p = entry;
-    while let Some((from, k)) = parent[p] {
-        stem.push((from, k));
-        p = from;
+    /// The lasso of an indeterminate cycle (a cycle of pairs whose labels
+    /// differ) of the whole twin plant. Pairs are numbered breadth-first, so
+    /// the first such pair found has a shortest stem.
+    fn lasso(&self, nodes: &[(usize, bool)]) -> Option<Lasso> {
+        let uncertain: Vec<bool> = (self.pairs.iter())
+            .map(|&(a, b)| nodes[a].1 != nodes[b].1)
+            .collect();
+        let component = cyclic_components(&self.edges, &uncertain);
+        let entry = (0..self.pairs.len()).find(|&p| component[p].is_some())?;
+        let mut stem = Vec::new();
+        let mut p = entry;
+        while let Some((from, k)) = self.parent[p] {
+            stem.push((from, k));
+            p = from;
+        }
+        stem.reverse();
+        let cycle = shortest_cycle(&self.edges, &component, entry);
+        let steps = stem.iter().chain(cycle.iter()).map(|&(from, k)| {
+            let (_, ia, jb) = self.edges[from][k];
+            (self.pairs[from], ia, jb)
+        });
+        Some(Lasso {
+            steps: steps.collect(),
+            cycle_from: stem.len(),
+        })
     }
-    stem.reverse();
-    let cycle = shortest_cycle(&twin, &component, entry);
+}
 
-    // 4. Spell out both runs, the faulty one first.
-    let faulty_first = nodes[pairs[entry].0].1;
-    let (mut faulty, mut normal, mut observed) = (Vec::new(), Vec::new(), Vec::new());
-    for &(from, k) in stem.iter().chain(cycle.iter()) {
-        let (a, b) = pairs[from];
-        let (_, ia, jb) = twin[from][k];
-        let (edge_a, edge_b) = (&edges[a][ia], &edges[b][jb]);
-        let (ef, en) = if faulty_first {
-            (edge_a, edge_b)
+/// The pairs `(i, j)` of an edge of `a` and an edge of `b` on the same event;
+/// both lists are sorted by event.
+fn same_event_edges(a: &[ObsEdge], b: &[ObsEdge]) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let event = a[i].event;
+        if event < b[j].event {
+            i += 1;
+        } else if event > b[j].event {
+            j += 1;
         } else {
-            (edge_b, edge_a)
-        };
-        let (from_f, from_n) = if faulty_first { (a, b) } else { (b, a) };
-        let run = |from: usize, edge: &ObsEdge| run_of(sys, &failure, &nodes, from, edge);
-        faulty.extend(run(from_f, ef).iter().map(|&e| g.events[e].clone()));
-        normal.extend(run(from_n, en).iter().map(|&e| g.events[e].clone()));
-        observed.push(g.events[ef.event].clone());
+            let i_end = i + a[i..].iter().take_while(|e| e.event == event).count();
+            let j_end = j + b[j..].iter().take_while(|e| e.event == event).count();
+            out.extend((i..i_end).flat_map(|ia| (j..j_end).map(move |jb| (ia, jb))));
+            i = i_end;
+            j = j_end;
+        }
     }
-    Ok(Some(Counterexample {
-        faulty,
-        normal,
-        observed,
-        cycle_from: stem.len(),
-    }))
+    out
 }
 
 /// The run behind the observation edge `edge` out of node `from`: the same
@@ -1548,8 +1771,9 @@ fn observation_moves(
 /// components that hold a cycle: `component[p]` is the component's id, `None` for
 /// nodes on no cycle.
 fn cyclic_components(graph: &[Vec<(usize, usize, usize)>], keep: &[bool]) -> Vec<Option<usize>> {
-    let mut kept: DiGraph<(), ()> = DiGraph::with_capacity(graph.len(), 0);
-    for _ in graph {
+    // Nodes past the end of `graph` have no edges yet (not expanded).
+    let mut kept: DiGraph<(), ()> = DiGraph::with_capacity(keep.len(), 0);
+    for _ in keep {
         kept.add_node(());
     }
     for (v, out) in graph.iter().enumerate().filter(|&(v, _)| keep[v]) {
@@ -1557,7 +1781,7 @@ fn cyclic_components(graph: &[Vec<(usize, usize, usize)>], keep: &[bool]) -> Vec
             kept.add_edge(NodeIndex::new(v), NodeIndex::new(w), ());
         }
     }
-    let mut component = vec![None; graph.len()];
+    let mut component = vec![None; keep.len()];
     // Kosaraju: petgraph runs it iteratively, where its Tarjan recurses once per
     // node on a path, which a long cycle of pairs would overflow the stack with.
     let cyclic = kosaraju_scc(&kept)

@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 
 use diagnoser::faudes::{
     AssumptionViolation, Counterexample, EventDiagnosability, FailureTypes, Generator,
-    event_diagnosability, event_diagnosability_within, parse_failure_types, parse_generator,
-    render,
+    event_diagnosability, event_diagnosability_explored, event_diagnosability_within,
+    parse_failure_types, parse_generator, render,
 };
 use proptest::prelude::*;
 
@@ -728,23 +728,43 @@ fn write_generator(g: &Generator) -> String {
     text
 }
 
+/// Every verdict of `result` is the reference's, and every counterexample a
+/// pair of runs of `g`.
+fn agrees_with_the_reference(
+    g: &Generator,
+    f: &FailureTypes,
+    result: &EventDiagnosability,
+) -> Result<(), TestCaseError> {
+    for ((name, failures), verdict) in f.types.iter().zip(&result.types) {
+        prop_assert_eq!(
+            verdict.diagnosable,
+            reference_diagnosable(g, failures),
+            "type {}: {}",
+            name,
+            render(result)
+        );
+        if let Some(ce) = &verdict.counterexample {
+            let checked = check_counterexample(g, failures, ce);
+            prop_assert!(checked.is_ok(), "{:?}: {:?}", checked, ce);
+        }
+    }
+    Ok(())
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
 
     #[test]
     fn verifier_agrees_with_the_reference((g, f) in random_model()) {
-        let result = event_diagnosability(&g, &f);
-        for ((name, failures), verdict) in f.types.iter().zip(&result.types) {
-            prop_assert_eq!(
-                verdict.diagnosable,
-                reference_diagnosable(&g, failures),
-                "type {}: {}", name, render(&result)
-            );
-            if let Some(ce) = &verdict.counterexample {
-                let checked = check_counterexample(&g, failures, ce);
-                prop_assert!(checked.is_ok(), "{:?}: {:?}", checked, ce);
-            }
-        }
+        agrees_with_the_reference(&g, &f, &event_diagnosability(&g, &f))?;
+    }
+
+    /// The depth-first search large verifiers get: the same verdicts, and
+    /// counterexamples that are runs of the generator.
+    #[test]
+    fn depth_first_search_agrees_with_the_reference((g, f) in random_model()) {
+        let result = event_diagnosability_explored(&g, &f, usize::MAX, 0).expect("no budget");
+        agrees_with_the_reference(&g, &f, &result)?;
     }
 
     #[test]
@@ -839,4 +859,30 @@ fn a_product_of_turntables_is_answered_and_a_budget_gives_up_in_time() {
     let too_large = event_diagnosability_within(&g, &f, 1_000).expect_err("over budget");
     assert_eq!(too_large.failure_type, "F");
     assert!(too_large.reached > 1_000);
+}
+
+#[test]
+fn a_large_verifier_stops_at_its_first_counterexample() {
+    let (four, map) = turntables(4);
+    let (g, f) = (
+        parse_generator(&four, Path::new("four.gen")).expect("generator"),
+        parse_failure_types(&map, Path::new("f.txt")).expect("map"),
+    );
+    let whole = event_diagnosability_explored(&g, &f, usize::MAX, usize::MAX).expect("no budget");
+    let (depth_first, size) = (1..)
+        .map(|k| 1usize << (2 * k))
+        .find_map(|budget| {
+            let r = event_diagnosability_explored(&g, &f, budget, 0).ok()?;
+            Some((r, budget))
+        })
+        .expect("an answer within some budget");
+    assert!(!whole.diagnosable && !depth_first.diagnosable);
+    let ce = depth_first.types[0]
+        .counterexample
+        .as_ref()
+        .expect("a counterexample");
+    check_counterexample(&g, &f.types[0].1, ce).expect("a run of the generator");
+    // The whole breadth-first exploration needs far more than the search.
+    let too_small = event_diagnosability_explored(&g, &f, size, usize::MAX);
+    assert!(too_small.is_err(), "the whole twin plant fits in {size}");
 }
