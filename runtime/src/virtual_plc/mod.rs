@@ -196,6 +196,14 @@ impl Service for ImageService {
     }
 }
 
+/// Serves a process image of `map`'s cells, all reading 0, over Modbus TCP
+/// on `listener` until dropped, as a virtual PLC serves its own (clients may
+/// write only the flag coils), with no plant running behind it: the request
+/// handling alone, for its fuzz target.
+pub async fn serve_image(listener: TcpListener, map: &ModbusMap) {
+    serve(listener, Arc::new(Mutex::new(Image::new(map)))).await;
+}
+
 /// Accepts clients until dropped; each client has its own task, so one that
 /// sends garbage or goes away only ends its own connection.
 async fn serve(listener: TcpListener, image: Arc<Mutex<Image>>) {

@@ -1,0 +1,6 @@
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| gardefou_fuzz::log(
+    data,
+    Some(logs::LogFormat::EventsCsv)
+));
