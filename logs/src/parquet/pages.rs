@@ -19,13 +19,16 @@ const LONGEST_HEADER: u64 = 1 << 20;
 /// nests three deep).
 const DEEPEST: u32 = 16;
 
-/// Checks a file's footer (a Thrift `FileMetaData`) as far as its structure:
+/// Checks a file's footer (a Thrift `FileMetaData`) as polars reads it.
 /// polars' reader reserves room for a list from the size it declares, and a
-/// damaged size made it reserve 47 GB and abort. Every list must fit in the
-/// footer's bytes.
+/// damaged size made it reserve 47 GB and abort; it also reads a field it
+/// knows as the type it expects, whatever type the field says it has, and a
+/// field of another type made it read a list header out of other bytes (76
+/// GB). Every field polars reads must have the type it expects there, and
+/// every list fit in the footer's bytes.
 pub(super) fn check_footer(bytes: &[u8]) -> Result<(), String> {
     let mut c = Compact { bytes, at: 0 };
-    match c.skip(STRUCT, 0) {
+    match c.structure(Shape::FileMetaData, 0) {
         Ok(()) => Ok(()),
         Err(Short) => Err("cut short, or a list longer than the footer".into()),
         Err(Malformed(why)) => Err(why.into()),
@@ -152,6 +155,104 @@ enum Fault {
 }
 use Fault::{Malformed, Short};
 
+/// A structure of the footer, as polars' reader reads it
+/// (`polars-parquet`'s `handwritten_thrift/file_metadata_thrift.rs`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Shape {
+    FileMetaData,
+    SchemaElement,
+    RowGroup,
+    ColumnChunk,
+    ColumnMetaData,
+    Statistics,
+    KeyValue,
+    SortingColumn,
+    /// `ColumnOrder` and `TimeUnit`: unions of empty structures.
+    EmptyUnion,
+    LogicalType,
+    Decimal,
+    /// `TimeType` and `TimestampType`.
+    TimeType,
+    IntType,
+    /// A structure polars reads no field of.
+    Empty,
+}
+
+/// What polars reads a field as.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Field {
+    /// An i16, i32 or i64 (a varint).
+    Varint,
+    Binary,
+    Bool,
+    Byte,
+    Struct(Shape),
+    ListOf(Element),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Element {
+    Varint,
+    Binary,
+    Struct(Shape),
+}
+
+/// What polars reads field `id` of `shape` as; `None` for a field it skips
+/// by its own type.
+fn field(shape: Shape, id: i16) -> Option<Field> {
+    use Field::{Binary, Bool, Byte, ListOf, Struct, Varint};
+    Some(match (shape, id) {
+        (Shape::FileMetaData, 1 | 3) => Varint,
+        (Shape::FileMetaData, 2) => ListOf(Element::Struct(Shape::SchemaElement)),
+        (Shape::FileMetaData, 4) => ListOf(Element::Struct(Shape::RowGroup)),
+        (Shape::FileMetaData, 5) => ListOf(Element::Struct(Shape::KeyValue)),
+        (Shape::FileMetaData, 6) => Binary,
+        (Shape::FileMetaData, 7) => ListOf(Element::Struct(Shape::EmptyUnion)),
+        (Shape::SchemaElement, 1..=3 | 5..=9) => Varint,
+        (Shape::SchemaElement, 4) => Binary,
+        (Shape::SchemaElement, 10) => Struct(Shape::LogicalType),
+        (Shape::RowGroup, 1) => ListOf(Element::Struct(Shape::ColumnChunk)),
+        (Shape::RowGroup, 2 | 3 | 5..=7) => Varint,
+        (Shape::RowGroup, 4) => ListOf(Element::Struct(Shape::SortingColumn)),
+        (Shape::ColumnChunk, 1) => Binary,
+        (Shape::ColumnChunk, 2 | 4..=7) => Varint,
+        (Shape::ColumnChunk, 3) => Struct(Shape::ColumnMetaData),
+        (Shape::ColumnMetaData, 1 | 4..=7 | 9..=11 | 14 | 15) => Varint,
+        (Shape::ColumnMetaData, 2) => ListOf(Element::Varint),
+        (Shape::ColumnMetaData, 3) => ListOf(Element::Binary),
+        (Shape::ColumnMetaData, 12) => Struct(Shape::Statistics),
+        (Shape::Statistics, 1 | 2 | 5 | 6) => Binary,
+        (Shape::Statistics, 3 | 4) => Varint,
+        (Shape::Statistics, 7 | 8) => Bool,
+        (Shape::KeyValue, 1 | 2) => Binary,
+        (Shape::SortingColumn, 1) => Varint,
+        (Shape::SortingColumn, 2 | 3) => Bool,
+        (Shape::EmptyUnion, 1..=3) => Struct(Shape::Empty),
+        (Shape::LogicalType, 1..=4 | 6 | 11..=15) => Struct(Shape::Empty),
+        (Shape::LogicalType, 5) => Struct(Shape::Decimal),
+        (Shape::LogicalType, 7 | 8) => Struct(Shape::TimeType),
+        (Shape::LogicalType, 10) => Struct(Shape::IntType),
+        (Shape::Decimal, 1 | 2) => Varint,
+        (Shape::TimeType, 1) => Bool,
+        (Shape::TimeType, 2) => Struct(Shape::EmptyUnion),
+        (Shape::IntType, 1) => Byte,
+        (Shape::IntType, 2) => Bool,
+        _ => return None,
+    })
+}
+
+/// Whether a value of Thrift type `kind` reads as `field`.
+fn fits(field: Field, kind: u8) -> bool {
+    match field {
+        Field::Varint => matches!(kind, I16 | I32 | I64),
+        Field::Binary => kind == BINARY,
+        Field::Bool => matches!(kind, TRUE | FALSE),
+        Field::Byte => kind == BYTE,
+        Field::Struct(_) => kind == STRUCT,
+        Field::ListOf(_) => matches!(kind, LIST | SET),
+    }
+}
+
 // Thrift compact protocol types.
 const TRUE: u8 = 1;
 const FALSE: u8 = 2;
@@ -243,6 +344,66 @@ impl Compact<'_> {
                 (5, I32) => header.levels[0] = self.int()?,
                 (6, I32) => header.levels[1] = self.int()?,
                 _ => self.skip(kind, 1)?,
+            }
+        }
+        Ok(())
+    }
+
+    /// A structure of `shape`, `depth` structures deep, each field polars
+    /// reads of the type it expects.
+    fn structure(&mut self, shape: Shape, depth: u32) -> Result<(), Fault> {
+        if depth > DEEPEST {
+            return Err(Malformed("structures nested too deep"));
+        }
+        let mut last = 0i16;
+        while let Some((id, kind)) = self.field_header(&mut last)? {
+            let Some(expected) = field(shape, id) else {
+                self.skip(kind, depth + 1)?;
+                continue;
+            };
+            if !fits(expected, kind) {
+                return Err(Malformed("a field of another type than its own"));
+            }
+            match expected {
+                Field::Varint => drop(self.varint()?),
+                Field::Binary => {
+                    let len = self.varint()?;
+                    self.advance(len)?;
+                }
+                Field::Bool => {}
+                Field::Byte => drop(self.byte()?),
+                Field::Struct(inner) => self.structure(inner, depth + 1)?,
+                Field::ListOf(element) => self.list(element, depth + 1)?,
+            }
+        }
+        Ok(())
+    }
+
+    /// A list polars reads as a list of `element`s.
+    fn list(&mut self, element: Element, depth: u32) -> Result<(), Fault> {
+        let b = self.byte()?;
+        let size = match b >> 4 {
+            15 => self.varint()?,
+            n => u64::from(n),
+        };
+        self.room_for(size)?;
+        let kind = b & 0x0f;
+        let fits = match element {
+            Element::Varint => matches!(kind, I16 | I32 | I64),
+            Element::Binary => kind == BINARY,
+            Element::Struct(_) => kind == STRUCT,
+        };
+        if size > 0 && !fits {
+            return Err(Malformed("a list of another type than its own"));
+        }
+        for _ in 0..size {
+            match element {
+                Element::Varint => drop(self.varint()?),
+                Element::Binary => {
+                    let len = self.varint()?;
+                    self.advance(len)?;
+                }
+                Element::Struct(shape) => self.structure(shape, depth + 1)?,
             }
         }
         Ok(())

@@ -1093,8 +1093,10 @@ fn read_all(path: &Path, plant: &Plant) -> Result<(), Located> {
 /// Found by the `parquet` fuzz target, each made polars reserve more memory
 /// than there is and abort the process, which no panic handler catches: a data
 /// page whose header says it holds -33 values (2^61 bytes for their validity),
-/// a footer whose list of row groups says it is longer than the footer (47 GB).
-/// The footer's structure and the page headers are now checked first.
+/// a footer whose list of row groups says it is longer than the footer (47 GB),
+/// a footer field of another type than polars expects, which it read a list
+/// header out of (76 GB). The footer's structure, as polars reads it, and the
+/// page headers are now checked first.
 #[test]
 fn counts_polars_would_reserve_memory_for_are_checked_first() {
     let cases = [
@@ -1105,6 +1107,10 @@ fn counts_polars_would_reserve_memory_for_are_checked_first() {
         (
             "list_longer_than_footer.parquet",
             "a damaged footer: cut short, or a list longer than the footer",
+        ),
+        (
+            "footer_field_of_another_type.parquet",
+            "a damaged footer: a field of another type than its own",
         ),
     ];
     for (name, message) in cases {
