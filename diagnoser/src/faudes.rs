@@ -1388,6 +1388,7 @@ fn verify(
 
     let (nodes, edges, starts) =
         observation_automaton(g, sys, &failure, &mut |by| grow(&mut size, by))?;
+    let observation_size = size;
 
     // 2. Its twin plant (libFAUDES's G_d = G_o || G_o), breadth-first while
     //    it is small; depth-first, stopping at the first counterexample, once
@@ -1398,7 +1399,9 @@ fn verify(
         grow(&mut size, 1 + added)?;
         if size > breadth_first && twin.next < twin.pairs.len() {
             drop(twin);
-            let mut size = size_of_observation(&edges);
+            // The search counts from the observation automaton, as the
+            // breadth-first exploration it replaces did.
+            let mut size = observation_size;
             let lasso = depth_first_lasso(&nodes, &edges, &starts, &mut |by| grow(&mut size, by))?;
             let lasso = lasso.map(|lasso| shorter_stem(&nodes, &edges, &starts, lasso, budget));
             return Ok(lasso.map(|lasso| spell_out(g, sys, &failure, &nodes, &edges, &lasso)));
@@ -1416,11 +1419,6 @@ fn verify(
 /// indeterminate cycle: on products of many components, the whole twin
 /// plant is far larger than the way to one of its cycles.
 pub const BREADTH_FIRST: usize = 1 << 16;
-
-/// The observation automaton's nodes and edges, which the budget counts.
-fn size_of_observation(edges: &[Vec<ObsEdge>]) -> usize {
-    edges.iter().map(|out| 1 + out.len()).sum()
-}
 
 /// A counterexample as the twin plant shows it: its steps (a pair of
 /// observation nodes, the edge of each taken), the loop starting at step
@@ -1460,12 +1458,10 @@ fn depth_first_lasso(
     };
     // On the path: its depth; done: `usize::MAX`.
     let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
-    for &root in starts
+    let roots = starts
         .iter()
-        .flat_map(|a| starts.iter().map(move |b| (*a, *b)))
-        .collect::<Vec<_>>()
-        .iter()
-    {
+        .flat_map(|&a| starts.iter().map(move |&b| (a, b)));
+    for root in roots {
         if seen.contains_key(&root) {
             continue;
         }
