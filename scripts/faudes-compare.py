@@ -10,7 +10,10 @@ listed in diagnoser/tests/fixtures/faudes/models.txt and
   (default)      compares its verdicts with that file and with ours, obtained from
                  `cargo run -q -p diagnoser --example faudes_check`;
   --random N     also compares both on N random small generators (--seed S to
-                 choose them), which reaches far more cases than the tutorial.
+                 choose them), which reaches far more cases than the tutorial;
+  --products N   also on N plants of two or three random components, sharing
+                 events or not: libFAUDES checks their `Parallel`, we check the
+                 components (`check --gen A.gen B.gen`).
 
 A verdict is given for the whole failure-type map and for each failure type alone
 (libFAUDES run on a map holding only that type).
@@ -219,11 +222,79 @@ def random_model(rng, index, directory):
     return gen_path, map_path
 
 
+def random_product(rng, index, directory):
+    """Two or three random components over a common pool of events, each
+    taking a random part of it (so that they share events or not), and a
+    failure-type map; libFAUDES's `Parallel` of them written beside.
+    Returns (comma-joined component paths, product path, map path)."""
+    observable = ["o1", "o2", "o3", "o4"]
+    hidden = ["u1", "f1", "f2", "f3"]
+    alphabets = []
+    for _ in range(rng.randint(2, 3)):
+        alphabets.append([e for e in observable + hidden if rng.random() < 0.45]
+                         or [rng.choice(observable)])
+    # At least one failure, and only failures some component has (libFAUDES
+    # refuses a map naming an event of no component).
+    if not any(e.startswith("f") for mine in alphabets for e in mine):
+        alphabets[0].append("f1")
+    present = {e for mine in alphabets for e in mine}
+    paths = []
+    for c, mine in enumerate(alphabets):
+        n = rng.randint(1, 4)
+        transitions = set()
+        for x in range(1, n + 1):
+            for _ in range(rng.randint(0, 3)):
+                event = rng.choice(mine)
+                if event in hidden and x < n and rng.random() < 0.8:
+                    y = rng.randint(x + 1, n)
+                else:
+                    y = rng.randint(1, n)
+                transitions.add((x, event, y))
+        alphabet = " ".join(e if e in observable else f"{e} +o+" for e in mine)
+        path = os.path.join(directory, f"product_{index:04}_{c}.gen")
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(
+                f'<Generator> "c{c}"\n<Alphabet> {alphabet} </Alphabet>\n'
+                f"<States> {' '.join(str(x) for x in range(1, n + 1))} </States>\n<TransRel>\n"
+                + "\n".join(f'{x} "{e}" {y}' for x, e, y in sorted(transitions))
+                + "\n</TransRel>\n<InitStates> 1 </InitStates>\n</Generator>\n"
+            )
+        paths.append(path)
+    failures = [e for e in ("f1", "f2", "f3") if e in present]
+    if rng.random() < 0.5 or len(failures) == 1:
+        types = [("F", failures)]
+    else:
+        types = [("F1", failures[:1]), ("F2", failures[1:])]
+    map_path = os.path.join(directory, f"product_{index:04}.txt")
+    with open(map_path, "w", encoding="utf-8") as fh:
+        fh.write("<FailureTypes>\n")
+        for name, events in types:
+            fh.write(f'"{name}" <FailureEvents> {" ".join(events)} </FailureEvents>\n')
+        fh.write("</FailureTypes>\n")
+    return ",".join(paths), map_path
+
+
+def libfaudes_product(faudes, components, directory, index):
+    """libFAUDES's `Parallel` of the components, written to a file."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        systems = [faudes.System(path) for path in components.split(",")]
+        result = systems[0]
+        for other in systems[1:]:
+            composed = faudes.System()
+            faudes.Parallel(result, other, composed)
+            result = composed
+        path = os.path.join(directory, f"product_{index:04}.gen")
+        result.Write(path)
+    return path
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--write", action="store_true", help="regenerate expected.txt")
     parser.add_argument("--random", type=int, default=0, metavar="N",
                         help="also compare on N random generators")
+    parser.add_argument("--products", type=int, default=0, metavar="N",
+                        help="also compare on N random plants of several components")
     parser.add_argument("--seed", type=int, default=1, help="seed of the random generators")
     options = parser.parse_args()
     faudes = load_faudes()
@@ -266,7 +337,7 @@ def main():
     verdicts = [theirs[model] for model in models]
 
     scratch = None
-    if options.random > 0:
+    if options.random > 0 or options.products > 0:
         scratch = tempfile.mkdtemp(prefix="faudes-compare-")
         rng = random.Random(options.seed)
         for index in range(options.random):
@@ -276,6 +347,15 @@ def main():
                 continue
             pairs.append((gen_path, map_path))
             labels.append(f"{gen_path} {map_path}")
+            verdicts.append(verdict)
+        for index in range(options.products):
+            components, map_path = random_product(rng, index, scratch)
+            whole = libfaudes_product(faudes, components, scratch, index)
+            verdict = format_verdicts(*libfaudes_verdicts(faudes, whole, map_path))
+            if verdict.startswith(ERROR):
+                continue
+            pairs.append((components, map_path))
+            labels.append(f"{components} {map_path}")
             verdicts.append(verdict)
 
     ours = our_verdicts(pairs)
@@ -291,14 +371,14 @@ def main():
     for label, theirs_line, ours_line in list(zip(labels, verdicts, ours))[: len(models)]:
         mark = "ok " if theirs_line == ours_line else "DIFF"
         print(f"{mark} {label:<{width}}  libFAUDES: {theirs_line}  ours: {ours_line}")
-    if options.random > 0:
+    if options.random > 0 or options.products > 0:
         compared = len(pairs) - len(models)
         agreed = sum(
             1 for t, o in list(zip(verdicts, ours))[len(models):] if t == o
         )
         diagnosable = sum(1 for t in verdicts[len(models):] if t.startswith(DIAG))
         print(
-            f"random generators (seed {options.seed}): {agreed}/{compared} agree, "
+            f"random generators and plants (seed {options.seed}): {agreed}/{compared} agree, "
             f"{diagnosable} diagnosable for libFAUDES"
         )
 

@@ -18,6 +18,61 @@ use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, Time, time};
 use filter_coupling::simplify::PartFilter;
 
+/// Why a generator, or a product of them, could not be checked, naming the
+/// files.
+fn product_error(
+    paths: &[PathBuf],
+    components: &[faudes::Generator],
+    budget: usize,
+    error: faudes::product::ProductError,
+) -> String {
+    use faudes::product::ProductError;
+    let files = |members: &[usize]| {
+        (members.iter())
+            .map(|&i| paths[i].display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let states = |members: &[usize]| {
+        (members.iter())
+            .map(|&i| components[i].states.len().max(1) as f64)
+            .product::<f64>()
+    };
+    match error {
+        ProductError::Observability {
+            event,
+            observable_in,
+            unobservable_in,
+        } => format!(
+            "{}: event {} is unobservable here but observable in {}: a shared event must be seen alike",
+            paths[unobservable_in].display(),
+            diagnoser::error::quoted(&event),
+            paths[observable_in].display()
+        ),
+        ProductError::ProductTooLarge {
+            components: members,
+            reached,
+        } => format!(
+            "{}: their product grew past {budget} states and transitions (--max-states; {reached} reached) with no answer yet: these components share events, so they are composed as one",
+            files(&members)
+        ),
+        ProductError::VerifierTooLarge {
+            components: members,
+            too_large,
+        } => format!(
+            "{}: the verifier of failure type {} grew past {budget} states and transitions (--max-states) with no answer yet: {} states are too many to check as one{}",
+            files(&members),
+            diagnoser::error::quoted(&too_large.failure_type),
+            states(&members),
+            if paths.len() == 1 {
+                "; give the plant as its components (several --gen files)"
+            } else {
+                ""
+            }
+        ),
+    }
+}
+
 /// Arguments of `gardefou check`.
 #[derive(Debug, Args)]
 pub struct CheckArgs {
@@ -41,9 +96,11 @@ pub struct CheckArgs {
     /// Longest an unexpected sensor edge shows (as for `diagnose`).
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
-    /// Instead: a libFAUDES generator file (`.gen`) to check for event-diagnosability.
-    #[arg(long = "gen", value_name = "GEN", conflicts_with_all = ["plant", "model"], requires = "failures")]
-    generator: Option<PathBuf>,
+    /// Instead: a libFAUDES generator file (`.gen`) to check for
+    /// event-diagnosability; several are the components of a plant, checked
+    /// as their product (shared events move together).
+    #[arg(long = "gen", value_name = "GEN", num_args = 1.., conflicts_with_all = ["plant", "model"], requires = "failures")]
+    generator: Vec<PathBuf>,
     /// The libFAUDES failure-type map that goes with `--gen`.
     #[arg(long, value_name = "FILE")]
     failures: Option<PathBuf>,
@@ -60,8 +117,8 @@ pub struct CheckArgs {
 
 /// Runs `gardefou check`.
 pub fn run(args: CheckArgs) -> Result<(), Failure> {
-    if let (Some(gen_path), Some(map)) = (&args.generator, &args.failures) {
-        return faudes_check(gen_path, map, args.json, args.max_states);
+    if let (false, Some(map)) = (args.generator.is_empty(), &args.failures) {
+        return faudes_check(&args.generator, map, args.json, args.max_states);
     }
     let (Some(plant_path), Some(model_path)) = (&args.plant, &args.model) else {
         return Err(Failure::bad(
@@ -365,7 +422,7 @@ fn waiting_sentence(label: &str, w: &Waiting) -> String {
 }
 
 fn faudes_check(
-    gen_path: &PathBuf,
+    gen_paths: &[PathBuf],
     map: &PathBuf,
     json: bool,
     budget: usize,
@@ -374,16 +431,12 @@ fn faudes_check(
         fs::read_to_string(p)
             .map_err(|e| Failure::bad(format!("{}: cannot read: {e}", p.display())))
     };
-    let g = faudes::parse_generator(&read(gen_path)?, gen_path).map_err(Failure::bad)?;
+    let components = (gen_paths.iter())
+        .map(|p| faudes::parse_generator(&read(p)?, p).map_err(Failure::bad))
+        .collect::<Result<Vec<_>, _>>()?;
     let f = faudes::parse_failure_types(&read(map)?, map).map_err(Failure::bad)?;
-    let result = faudes::event_diagnosability_within(&g, &f, budget).map_err(|big| {
-        Failure::bad(format!(
-            "{}: the verifier of failure type '{}' grew past {budget} states and transitions (--max-states) with no answer yet: the generator's {} states are too many to check as one; check its components",
-            gen_path.display(),
-            big.failure_type,
-            g.states.len()
-        ))
-    })?;
+    let result = faudes::product::event_diagnosability(&components, &f, budget)
+        .map_err(|e| Failure::bad(product_error(gen_paths, &components, budget, e)))?;
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     if json {

@@ -3,6 +3,9 @@
 //!
 //! Usage: `faudes_check [--explain] GENERATOR FAILURE_TYPES [GENERATOR FAILURE_TYPES ...]`
 //!
+//! `GENERATOR` may be several files joined by commas: the components of a
+//! plant, checked as their product.
+//!
 //! Prints, per model, `GENERATOR VERDICT TYPE=VERDICT...`, verdicts being
 //! `diagnosable` or `not-diagnosable`: first the verdict for the whole map, then
 //! the verdict for each failure type alone (what libFAUDES answers for a map holding
@@ -13,7 +16,7 @@
 use std::path::Path;
 use std::process::ExitCode;
 
-use diagnoser::faudes::{event_diagnosability, parse_failure_types, parse_generator, render};
+use diagnoser::faudes::{parse_failure_types, parse_generator, product, render};
 
 fn word(diagnosable: bool) -> &'static str {
     if diagnosable {
@@ -26,10 +29,13 @@ fn word(diagnosable: bool) -> &'static str {
 fn check(generator: &str, failure_types: &str, explain: bool) -> Result<(), String> {
     let read =
         |path: &str| std::fs::read_to_string(path).map_err(|e| format!("{path}: cannot read: {e}"));
-    let g = parse_generator(&read(generator)?, Path::new(generator)).map_err(|e| e.to_string())?;
+    let components = (generator.split(','))
+        .map(|path| parse_generator(&read(path)?, Path::new(path)).map_err(|e| e.to_string()))
+        .collect::<Result<Vec<_>, _>>()?;
     let f = parse_failure_types(&read(failure_types)?, Path::new(failure_types))
         .map_err(|e| e.to_string())?;
-    let result = event_diagnosability(&g, &f);
+    let result = product::event_diagnosability(&components, &f, usize::MAX)
+        .map_err(|e| format!("{generator}: {e:?}"))?;
     let mut line = format!("{generator} {}", word(result.diagnosable));
     for (name, _) in &f.types {
         let alone = result.type_diagnosable(name).unwrap_or(false);

@@ -259,6 +259,51 @@ fn check_reads_libfaudes_generators() {
 }
 
 #[test]
+fn check_reads_a_plant_as_its_components() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    // A machine that may fail silently and then works on unseen; `hidden`
+    // makes its start unobservable.
+    let machine = |i: usize, hidden: bool| {
+        let path = dir.path().join(format!("m{i}.gen"));
+        let text = format!(
+            "<Generator> \"m{i}\" <Alphabet> start {} go{i} done{i} f{i} +o+ </Alphabet>\n\
+             <States> idle busy broken </States>\n\
+             <TransRel> idle start idle idle go{i} busy busy done{i} idle idle f{i} broken broken go{i} broken </TransRel>\n\
+             <InitStates> idle </InitStates> </Generator>\n",
+            if hidden { "+o+" } else { "" }
+        );
+        fs::write(&path, text).expect("write");
+        path.to_str().expect("utf-8").to_string()
+    };
+    let map = dir.path().join("f.txt");
+    fs::write(
+        &map,
+        "<FailureTypes> F <FailureEvents> f0 f1 </FailureEvents> </FailureTypes>\n",
+    )
+    .expect("write");
+    let map = map.to_str().expect("utf-8");
+    let (m0, m1) = (machine(0, false), machine(1, false));
+    let o = gardefou(&["check", "--gen", &m0, &m1, "--failures", map]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    // Alone, a broken machine shows `go` and never `done`: diagnosable. With
+    // the other machine, it may also stop being asked.
+    assert!(text.starts_with("not diagnosable"), "{text}");
+    assert!(text.contains("faulty:   "), "{text}");
+    let hidden = machine(2, true);
+    let o = gardefou(&["check", "--gen", &m0, &hidden, "--failures", map]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&format!(
+            "{hidden}: event 'start' is unobservable here but observable in {m0}"
+        )),
+        "{err}"
+    );
+}
+
+#[test]
 fn bad_models_are_one_line_errors_with_exit_code_2() {
     let dir = tempfile::tempdir().expect("temp dir");
     let broken = dir.path().join("model.json");

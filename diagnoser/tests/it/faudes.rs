@@ -123,7 +123,7 @@ fn after(g: &Generator, from: &BTreeSet<usize>, events: &[usize]) -> BTreeSet<us
 /// Checks that `ce` is a genuine indeterminate cycle of `g` for the failure events
 /// `failures`: two runs from an initial state whose loops can repeat, the same
 /// observation, a failure in the faulty stem and none in the normal run.
-fn check_counterexample(
+pub(crate) fn check_counterexample(
     g: &Generator,
     failures: &[String],
     ce: &Counterexample,
@@ -279,7 +279,8 @@ fn failed_assumptions_are_reported() {
     assert_eq!(
         deadlock.assumptions,
         vec![AssumptionViolation::Deadlock {
-            states: vec!["3".into()]
+            states: vec!["3".into()],
+            more: 0,
         }]
     );
     // The failure type itself is diagnosable; libFAUDES's verdict is not.

@@ -2,3 +2,4 @@
 
 mod diagnosis;
 mod faudes;
+mod faudes_product;

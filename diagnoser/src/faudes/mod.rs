@@ -38,6 +38,8 @@ use petgraph::graph::{DiGraph, NodeIndex};
 
 use crate::error::{Located, Location, line_column};
 
+pub mod product;
+
 /// An untimed automaton read from a libFAUDES `.gen` file.
 ///
 /// States and events are numbered from 0 in file order; the vectors below are
@@ -133,8 +135,12 @@ pub enum AssumptionViolation {
     /// States without any outgoing transition (the generator must be live; libFAUDES
     /// checks every state, reachable or not).
     Deadlock {
-        /// Their names, in state order.
+        /// Their names, in state order (at most [`LISTED_STATES`] of a product).
         states: Vec<String>,
+        /// How many more there are, not listed (a product's dead states are
+        /// every combination of its independent components' own).
+        #[serde(default, skip_serializing_if = "is_zero")]
+        more: usize,
     },
     /// A cycle of unobservable events (checked over every state, reachable or not).
     UnobservableCycle {
@@ -1230,15 +1236,41 @@ impl System {
 }
 
 fn assumptions(g: &Generator, sys: &System, f: &FailureTypes) -> Vec<AssumptionViolation> {
+    let mut violations = failure_event_violations(&g.events, &sys.observable, f);
+    let dead: Vec<String> = (0..g.states.len())
+        .filter(|&x| sys.out[x].is_empty())
+        .map(|x| g.states[x].clone())
+        .collect();
+    if !dead.is_empty() {
+        violations.push(AssumptionViolation::Deadlock {
+            states: dead,
+            more: 0,
+        });
+    }
+    if let Some((states, events)) = unobservable_cycle(sys) {
+        violations.push(AssumptionViolation::UnobservableCycle {
+            states: states.into_iter().map(|x| g.states[x].clone()).collect(),
+            events: events.into_iter().map(|e| g.events[e].clone()).collect(),
+        });
+    }
+    violations
+}
+
+/// The failure events that are not `events`, or are observable.
+fn failure_event_violations(
+    events: &[String],
+    observable: &[bool],
+    f: &FailureTypes,
+) -> Vec<AssumptionViolation> {
     let mut violations = Vec::new();
     for (failure_type, failures) in &f.types {
         for event in failures {
-            match g.events.iter().position(|e| e == event) {
+            match events.iter().position(|e| e == event) {
                 None => violations.push(AssumptionViolation::UnknownFailureEvent {
                     failure_type: failure_type.clone(),
                     event: event.clone(),
                 }),
-                Some(e) if sys.observable[e] => {
+                Some(e) if observable[e] => {
                     violations.push(AssumptionViolation::ObservableFailureEvent {
                         failure_type: failure_type.clone(),
                         event: event.clone(),
@@ -1248,20 +1280,11 @@ fn assumptions(g: &Generator, sys: &System, f: &FailureTypes) -> Vec<AssumptionV
             }
         }
     }
-    let dead: Vec<String> = (0..g.states.len())
-        .filter(|&x| sys.out[x].is_empty())
-        .map(|x| g.states[x].clone())
-        .collect();
-    if !dead.is_empty() {
-        violations.push(AssumptionViolation::Deadlock { states: dead });
-    }
-    if let Some((states, events)) = unobservable_cycle(sys) {
-        violations.push(AssumptionViolation::UnobservableCycle {
-            states: states.into_iter().map(|x| g.states[x].clone()).collect(),
-            events: events.into_iter().map(|e| g.events[e].clone()).collect(),
-        });
-    }
     violations
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// A cycle of unobservable transitions, as its states and events, if there is one.
@@ -1868,10 +1891,15 @@ pub fn render(result: &EventDiagnosability) -> String {
                 show(event),
                 show(failure_type)
             ),
-            AssumptionViolation::Deadlock { states } => format!(
-                "the generator is not live: no transition leaves state{} {}",
-                if states.len() == 1 { "" } else { "s" },
-                words(states)
+            AssumptionViolation::Deadlock { states, more } => format!(
+                "the generator is not live: no transition leaves state{} {}{}",
+                if states.len() + more == 1 { "" } else { "s" },
+                words(states),
+                if *more > 0 {
+                    format!(" and {more} more")
+                } else {
+                    String::new()
+                }
             ),
             AssumptionViolation::UnobservableCycle { states, events } => {
                 let mut cycle = String::new();
