@@ -202,11 +202,33 @@ def expressions():
         (CORPUS / "expression" / f"{i:03}").write_text(e)
 
 
+def gen_products():
+    """Plants of two or three components, joined by NUL bytes: the tutorial's
+    generators paired, and turntables (independent, or sharing an event)."""
+    faudes = ROOT / "diagnoser/tests/fixtures/faudes"
+    gens = sorted(faudes.glob("*.gen"))
+    out = CORPUS / "gen_product"
+    for i, (a, b) in enumerate(zip(gens, gens[1:] + gens[:1])):
+        (out / f"pair_{i:02}").write_bytes(a.read_bytes() + b"\0" + b.read_bytes())
+
+    def turntable(i, shared):
+        release = "go" if shared else f"r_{i}"
+        return (f'<Generator> "t{i}" <Alphabet> a_{i} c5_{i} {release} c4_{i} f_{i} +o+ m_{i} +o+ '
+                f"</Alphabet> <States> 1 2 3 4 5 6 7 8 </States> <TransRel> "
+                f"1 a_{i} 2 2 c5_{i} 3 3 {release} 4 4 c4_{i} 1 1 f_{i} 5 "
+                f"5 a_{i} 6 6 m_{i} 7 7 {release} 8 8 c4_{i} 5 </TransRel> "
+                f"<InitStates> 1 </InitStates> </Generator>\n")
+    for shared in (False, True):
+        for n in (2, 3):
+            text = "\0".join(turntable(i, shared) for i in range(n))
+            (out / f"turntables_{n}_{'shared' if shared else 'apart'}").write_text(text)
+
+
 def main():
     gardefou = sys.argv[1] if len(sys.argv) > 1 else str(ROOT / "target/release/gardefou")
     targets = ["events_csv", "intervals_csv", "scans_csv", "parquet", "candump", "vcd",
                "detect", "plant_toml", "model_json", "gen", "failure_map", "stdin_lines",
-               "modbus_requests", "expression"]
+               "modbus_requests", "expression", "gen_product"]
     for t in targets:
         (CORPUS / t).mkdir(parents=True, exist_ok=True)
         # Inputs the fuzzer found (`found-*`) stay; the seeds are written anew.
@@ -249,6 +271,7 @@ def main():
                     "-o", str(model)], check=True, stderr=subprocess.DEVNULL)
     modbus_seeds()
     expressions()
+    gen_products()
 
 
 if __name__ == "__main__":

@@ -20,8 +20,10 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
+use diagnoser::faudes::product::{self, parallel};
 use diagnoser::faudes::{
-    FailureTypes, event_diagnosability_within, parse_failure_types, parse_generator,
+    EventDiagnosability, FailureTypes, Generator, event_diagnosability_within, parse_failure_types,
+    parse_generator,
 };
 use diagnoser::model::Model;
 use diagnoser::{Event, Plant, SECOND, SignalId};
@@ -192,13 +194,55 @@ pub fn generator(data: &[u8]) {
     let Ok(g) = parse_generator(text, Path::new("plant.gen")) else {
         return;
     };
+    let _ = event_diagnosability_within(&g, &each_unobservable_event(&g), 20_000);
+}
+
+/// A failure type per unobservable event of `g`.
+fn each_unobservable_event(g: &Generator) -> FailureTypes {
     let unobservable = g.events.iter().zip(&g.observable).filter(|(_, o)| !**o);
-    let failures = FailureTypes {
+    FailureTypes {
         types: unobservable
             .map(|(e, _)| (e.clone(), vec![e.clone()]))
             .collect(),
+    }
+}
+
+/// A plant as two or three libFAUDES generators separated by NUL bytes: the
+/// verdicts of its components, checked as a plant, must be those of their
+/// product checked as one generator.
+pub fn generator_product(data: &[u8]) {
+    const BUDGET: usize = 20_000;
+    let components: Vec<Generator> = (data.split(|&b| b == 0).take(3))
+        .filter_map(|part| {
+            parse_generator(std::str::from_utf8(part).ok()?, Path::new("c.gen")).ok()
+        })
+        .collect();
+    if components.len() < 2 {
+        return;
+    }
+    let refs: Vec<&Generator> = components.iter().collect();
+    let Ok(whole) = parallel(&refs, BUDGET) else {
+        return;
     };
-    let _ = event_diagnosability_within(&g, &failures, 20_000);
+    let failures = each_unobservable_event(&whole.generator);
+    let Ok(ours) = product::event_diagnosability(&components, &failures, BUDGET) else {
+        return;
+    };
+    let Ok(theirs) = event_diagnosability_within(&whole.generator, &failures, BUDGET) else {
+        return;
+    };
+    let verdicts = |r: &EventDiagnosability| {
+        let kinds = (r.assumptions.iter())
+            .map(|v| std::mem::discriminant(v))
+            .collect::<Vec<_>>();
+        let types = r.types.iter().map(|t| t.diagnosable).collect::<Vec<_>>();
+        (r.diagnosable, kinds, types)
+    };
+    assert_eq!(
+        verdicts(&ours),
+        verdicts(&theirs),
+        "components and product disagree"
+    );
 }
 
 /// A libFAUDES failure map (`FailureTypes`), parsed.

@@ -56,8 +56,25 @@ fn first_line(message: &str) -> &str {
 fn failure(path: &Path, message: &str) -> Located {
     file_error(
         path,
-        format!("cannot read the Parquet log: {}", first_line(message)),
+        format!(
+            "cannot read the Parquet log: {}",
+            in_words(first_line(message))
+        ),
     )
+}
+
+/// polars' message, or what it means where polars gives a dump of its
+/// reader's state: the Arrow schema a Parquet footer may embed
+/// (`ARROW:schema`, base64 flatbuffers) fails to decode with the flatbuffers
+/// reader's error as a Rust structure (`Error { source_location: … }`), or
+/// an Arrow IPC message about its fields.
+fn in_words(message: &str) -> &str {
+    const ARROW_SCHEMA: [&str; 3] = ["ARROW:schema", "IPC:", "source_location: ErrorLocation"];
+    if ARROW_SCHEMA.iter().any(|sign| message.contains(sign)) {
+        "a damaged footer: the Arrow schema it embeds (ARROW:schema) cannot be decoded"
+    } else {
+        message
+    }
 }
 
 /// Runs a call into polars with its panics contained: a malformed file can
