@@ -146,18 +146,19 @@ pub fn parallel(components: &[&Generator], budget: usize) -> Result<Product, usi
     let alphabet = Alphabet::of(components);
     let width = components.len();
     let mut product = Explored::default();
-    let mut size = 0usize;
-    let starts = if width == 0 {
-        Vec::new()
-    } else {
-        combinations(
-            &(components.iter())
-                .map(|g| (g.initial.iter().copied().filter(|&x| x < g.states.len())).collect())
-                .collect::<Vec<Vec<usize>>>(),
-        )
-    };
-    for start in starts {
-        product.state(&start);
+    let initials: Vec<Vec<usize>> = (components.iter())
+        .map(|g| (g.initial.iter().copied().filter(|&x| x < g.states.len())).collect())
+        .collect();
+    // Counted before they are made: a few components with many initial
+    // states, or many successors on one event, are already too many.
+    let mut size = count(&initials);
+    if size > budget {
+        return Err(size);
+    }
+    if width > 0 {
+        for start in combinations(&initials) {
+            product.state(&start);
+        }
     }
     let initial = product.count;
     let mut transitions = Vec::new();
@@ -166,16 +167,15 @@ pub fn parallel(components: &[&Generator], budget: usize) -> Result<Product, usi
         let current: Vec<usize> = (product.members[next * width..][..width].iter())
             .map(|&x| x as usize)
             .collect();
-        let before = transitions.len();
         for (event, targets) in alphabet.moves(&current) {
+            size = size.saturating_add(count(&targets));
+            if size > budget {
+                return Err(size);
+            }
             for target in combinations(&targets) {
                 let to = product.state(&target);
                 transitions.push((next, event, to));
             }
-        }
-        size = size.saturating_add(1 + transitions.len() - before);
-        if size > budget {
-            return Err(size);
         }
         next += 1;
     }
@@ -336,6 +336,11 @@ impl Explored {
             members: self.members,
         }
     }
+}
+
+/// How many [`combinations`] there are.
+fn count(lists: &[Vec<usize>]) -> usize {
+    (lists.iter()).fold(1usize, |n, list| n.saturating_mul(list.len()))
 }
 
 /// Every choice of one item per list, the first list's item varying slowest.

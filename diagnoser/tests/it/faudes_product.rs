@@ -261,3 +261,38 @@ fn an_event_observable_in_one_component_only_is_refused() {
         }
     );
 }
+
+#[test]
+fn a_product_too_large_is_refused_before_it_is_made() {
+    // Four components of 400 initial states each: 2.56 × 10^10 initial
+    // states in the product, refused before one is made.
+    let wide = |i: usize| Generator {
+        name: format!("w{i}"),
+        events: vec![format!("e{i}")],
+        observable: vec![true],
+        states: (0..400).map(|x| format!("s{x}")).collect(),
+        initial: (0..400).collect(),
+        marked: Vec::new(),
+        transitions: (0..400).map(|x| (x, 0, x)).collect(),
+    };
+    let plant: Vec<Generator> = (0..4).map(wide).collect();
+    let refs: Vec<&Generator> = plant.iter().collect();
+    assert_eq!(parallel(&refs, 1_000_000).err(), Some(400usize.pow(4)));
+    // Nondeterminism alike: one shared event with 400 successors in each.
+    let fan = |i: usize| Generator {
+        name: format!("n{i}"),
+        events: vec!["go".into()],
+        observable: vec![true],
+        states: (0..400).map(|x| format!("s{x}")).collect(),
+        initial: vec![0],
+        marked: Vec::new(),
+        transitions: (0..400).map(|y| (0, 0, y)).collect(),
+    };
+    let plant: Vec<Generator> = (0..4).map(fan).collect();
+    let error =
+        product::event_diagnosability(&plant, &failures_of(0), 1_000_000).expect_err("too large");
+    assert!(
+        matches!(error, ProductError::ProductTooLarge { reached, .. } if reached > 1_000_000),
+        "{error:?}"
+    );
+}
