@@ -340,22 +340,22 @@ def main():
     if options.random > 0 or options.products > 0:
         scratch = tempfile.mkdtemp(prefix="faudes-compare-")
         rng = random.Random(options.seed)
+        # (what we check, its map, what libFAUDES checks): a product's
+        # components against libFAUDES's Parallel of them.
+        cases = []
         for index in range(options.random):
             gen_path, map_path = random_model(rng, index, scratch)
-            verdict = format_verdicts(*libfaudes_verdicts(faudes, gen_path, map_path))
-            if verdict.startswith(ERROR):
-                continue
-            pairs.append((gen_path, map_path))
-            labels.append(f"{gen_path} {map_path}")
-            verdicts.append(verdict)
+            cases.append((gen_path, map_path, gen_path))
         for index in range(options.products):
             components, map_path = random_product(rng, index, scratch)
-            whole = libfaudes_product(faudes, components, scratch, index)
-            verdict = format_verdicts(*libfaudes_verdicts(faudes, whole, map_path))
+            cases.append((components, map_path,
+                          libfaudes_product(faudes, components, scratch, index)))
+        for ours_path, map_path, theirs_path in cases:
+            verdict = format_verdicts(*libfaudes_verdicts(faudes, theirs_path, map_path))
             if verdict.startswith(ERROR):
                 continue
-            pairs.append((components, map_path))
-            labels.append(f"{components} {map_path}")
+            pairs.append((ours_path, map_path))
+            labels.append(f"{ours_path} {map_path}")
             verdicts.append(verdict)
 
     ours = our_verdicts(pairs)

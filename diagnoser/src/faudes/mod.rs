@@ -1182,14 +1182,24 @@ pub fn event_diagnosability_explored(
     breadth_first: usize,
 ) -> Result<EventDiagnosability, TooLarge> {
     let sys = System::new(g);
-    let assumptions = assumptions(g, &sys, f);
+    verdict(f, assumptions(g, &sys, f), |name, failures| {
+        verify(g, &sys, failures, budget, breadth_first).map_err(|reached| TooLarge {
+            failure_type: name.to_string(),
+            reached,
+        })
+    })
+}
+
+/// The verdict from the assumptions that do not hold and, per failure type,
+/// the counterexample `search` finds (if any).
+fn verdict<E>(
+    f: &FailureTypes,
+    assumptions: Vec<AssumptionViolation>,
+    mut search: impl FnMut(&str, &[String]) -> Result<Option<Counterexample>, E>,
+) -> Result<EventDiagnosability, E> {
     let mut types: Vec<TypeVerdict> = Vec::new();
     for (name, failures) in &f.types {
-        let counterexample =
-            verify(g, &sys, failures, budget, breadth_first).map_err(|reached| TooLarge {
-                failure_type: name.clone(),
-                reached,
-            })?;
+        let counterexample = search(name, failures)?;
         types.push(TypeVerdict {
             failure_type: name.clone(),
             diagnosable: counterexample.is_none(),

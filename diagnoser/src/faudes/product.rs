@@ -61,8 +61,7 @@ use std::collections::{HashMap, VecDeque};
 
 use super::{
     AssumptionViolation, BREADTH_FIRST, Counterexample, EventDiagnosability, FailureTypes,
-    Generator, System, TooLarge, TypeVerdict, cyclic_components, failure_event_violations,
-    unobservable_cycle,
+    Generator, System, TooLarge, cyclic_components, failure_event_violations, unobservable_cycle,
 };
 
 /// The most dead states of a product a [`AssumptionViolation::Deadlock`] lists.
@@ -195,22 +194,7 @@ struct Alphabet {
 
 impl Alphabet {
     fn of(components: &[&Generator]) -> Self {
-        let mut events: Vec<String> = Vec::new();
-        let mut observable = Vec::new();
-        let mut index: HashMap<&str, usize> = HashMap::new();
-        let mut global: Vec<Vec<usize>> = Vec::new();
-        for g in components {
-            let mut mine = Vec::with_capacity(g.events.len());
-            for (e, name) in g.events.iter().enumerate() {
-                let id = *index.entry(name).or_insert_with(|| {
-                    events.push(name.clone());
-                    observable.push(g.observable.get(e).copied().unwrap_or(true));
-                    events.len() - 1
-                });
-                mine.push(id);
-            }
-            global.push(mine);
-        }
+        let (events, observable, global) = union(components);
         let shares = (global.iter())
             .map(|mine| {
                 let mut has = vec![false; events.len()];
@@ -271,6 +255,29 @@ impl Alphabet {
         }
         moves
     }
+}
+
+/// The components' events, in order of first appearance, each observable as
+/// in the first component that has it; and each component's events as
+/// numbers among them.
+fn union(components: &[&Generator]) -> (Vec<String>, Vec<bool>, Vec<Vec<usize>>) {
+    let mut events: Vec<String> = Vec::new();
+    let mut observable = Vec::new();
+    let mut index: HashMap<&str, usize> = HashMap::new();
+    let mut global: Vec<Vec<usize>> = Vec::new();
+    for g in components {
+        let mut mine = Vec::with_capacity(g.events.len());
+        for (e, name) in g.events.iter().enumerate() {
+            let id = *index.entry(name).or_insert_with(|| {
+                events.push(name.clone());
+                observable.push(g.observable.get(e).copied().unwrap_or(true));
+                events.len() - 1
+            });
+            mine.push(id);
+        }
+        global.push(mine);
+    }
+    (events, observable, global)
 }
 
 /// The product's states found so far, numbered in order of discovery.
@@ -393,36 +400,19 @@ pub fn event_diagnosability_explored(
     let clusters = (clusters(components).into_iter())
         .map(|members| Cluster::compose(components, members, budget))
         .collect::<Result<Vec<_>, _>>()?;
-    let (events, observable) = {
-        let refs: Vec<&Generator> = components.iter().collect();
-        let alphabet = Alphabet::of(&refs);
-        (alphabet.events, alphabet.observable)
-    };
+    let refs: Vec<&Generator> = components.iter().collect();
+    let (events, observable, _) = union(&refs);
     let mut assumptions = failure_event_violations(&events, &observable, f);
-    let empty = clusters
-        .iter()
-        .any(|c| c.product.generator.states.is_empty());
+    let empty = (clusters.iter()).any(|c| c.product.generator.states.is_empty());
     if !empty {
         assumptions.extend(deadlock(components, &clusters));
         assumptions.extend(unobservable_cycle_in(components, &clusters));
     }
-    let mut types = Vec::new();
-    for (name, failures) in &f.types {
-        let counterexample = if empty {
-            None
-        } else {
-            counterexample(&clusters, name, failures, budget, breadth_first)?
-        };
-        types.push(TypeVerdict {
-            failure_type: name.clone(),
-            diagnosable: counterexample.is_none(),
-            counterexample,
-        });
-    }
-    Ok(EventDiagnosability {
-        diagnosable: assumptions.is_empty() && types.iter().all(|t| t.diagnosable),
-        assumptions,
-        types,
+    super::verdict(f, assumptions, |name, failures| {
+        if empty {
+            return Ok(None);
+        }
+        counterexample(&clusters, name, failures, budget, breadth_first)
     })
 }
 
