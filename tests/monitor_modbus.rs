@@ -32,6 +32,27 @@ fn serial() -> MutexGuard<'static, ()> {
     SERIAL.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Runs of a real-time test made at most, when the PLC keeps falling behind.
+const ATTEMPTS: usize = 5;
+
+/// A real-time run is evidence only if the PLC served its plant on time: on a
+/// loaded machine the replay or the virtual PLC falls behind, and its edges
+/// then come late for any observer. `run` returns how far behind it fell
+/// (`Err`, in the plant's milliseconds) when that spoilt the run; such a run
+/// is made again, and `ATTEMPTS` spoilt runs fail the test.
+fn on_time(what: &str, mut run: impl FnMut() -> Result<(), f64>) {
+    for attempt in 1..=ATTEMPTS {
+        match run() {
+            Ok(()) => return,
+            Err(late) => eprintln!(
+                "{what}: run {attempt}: the PLC fell {late:.1} ms behind real time; \
+                 the run is made again"
+            ),
+        }
+    }
+    panic!("{what}: the PLC fell behind real time in {ATTEMPTS} runs");
+}
+
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
@@ -144,6 +165,20 @@ fn python_plc_with(port: u16, from_ms: u64, to_ms: u64, speed: f64, flags: &[&st
     plc
 }
 
+/// How far the pymodbus PLC's replay fell behind the log's times at worst, in
+/// the log's milliseconds, read from its last line (it waits for the replay's end).
+fn python_most_late_ms(plc: &mut Lines) -> f64 {
+    let end = plc
+        .wait_for("\"end\"", Duration::from_secs(30))
+        .unwrap_or_else(|| panic!("the pymodbus PLC never ended: {:?}", plc.seen));
+    let v: serde_json::Value = serde_json::from_str(&end).expect("a JSON line");
+    v["most_late_ms"].as_f64().expect("most_late_ms")
+}
+
+/// The pymodbus replay's lateness that leaves the shipped model's guards
+/// meaningful: one scan of the log.
+const PYTHON_LATE_MS: f64 = 10.0;
+
 fn monitor(port: u16, http: Option<u16>, duration: &str) -> Lines {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_gardefou"));
     cmd.args(["monitor", "--plant", &path(PLANT), "--model", &path(MODEL)])
@@ -172,6 +207,13 @@ fn http_get(port: u16, route: &str) -> String {
 #[test]
 fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
     let _serial = serial();
+    on_time(
+        "independent server",
+        diagnose_and_flag_an_independent_server,
+    );
+}
+
+fn diagnose_and_flag_an_independent_server() -> Result<(), f64> {
     let port = free_port();
     let http = free_port();
     // F2 (C4 stuck at 1) starts at 602 s; RE(C5) settles it about 3.7 s later.
@@ -180,7 +222,13 @@ fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
     // Other parts may see a polling artefact (an edge a few ms outside its
     // learned window); the turntable's verdict is what is checked.
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(15));
-    let certain = certain.unwrap_or_else(|| panic!("no certain verdict: {:?}", mon.seen));
+    let Some(certain) = certain else {
+        let late = python_most_late_ms(&mut plc);
+        if late > PYTHON_LATE_MS {
+            return Err(late);
+        }
+        panic!("no certain verdict: {:?}", mon.seen);
+    };
     assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
     assert!(certain.contains("\"verdict\":\"certain\""), "{certain}");
     assert!(certain.contains("\"flags\":[\"def_C4\"]"), "{certain}");
@@ -212,6 +260,7 @@ fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
     let err = mon.stderr();
     assert!(status.success(), "{err}");
     assert!(err.contains("flags: def_C4"), "{err}");
+    Ok(())
 }
 
 /// The PLC is killed after the flag is written and a fresh one (coils all 0)
@@ -220,6 +269,10 @@ fn the_monitor_diagnoses_and_flags_an_independent_modbus_server() {
 #[test]
 fn a_restarted_plc_gets_the_raised_flag_back() {
     let _serial = serial();
+    on_time("restarted PLC", restart_the_plc);
+}
+
+fn restart_the_plc() -> Result<(), f64> {
     let port = free_port();
     let mut first = python_plc(port, 596_000, 608_000, 2.0);
     let mut mon = monitor(port, None, "14s");
@@ -227,6 +280,12 @@ fn a_restarted_plc_gets_the_raised_flag_back() {
         "\"flag\": \"def_C4\", \"coil\": 100, \"value\": true",
         Duration::from_secs(15),
     );
+    if written.is_none() {
+        let late = python_most_late_ms(&mut first);
+        if late > PYTHON_LATE_MS {
+            return Err(late);
+        }
+    }
     assert!(
         written.is_some(),
         "def_C4 not written: {:?} / {:?}",
@@ -251,6 +310,7 @@ fn a_restarted_plc_gets_the_raised_flag_back() {
     assert!(err.contains("connection lost"), "{err}");
     assert!(err.contains("plant seen again after a gap of"), "{err}");
     assert!(err.contains("flags: def_C4"), "{err}");
+    Ok(())
 }
 
 /// A peer that answers garbage is a lost connection, not a crash; the monitor
@@ -285,11 +345,21 @@ fn garbage_on_the_socket_is_a_lost_connection() {
 #[test]
 fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
     let _serial = serial();
+    on_time("virtual PLC goes on", flag_a_virtual_plc_which_goes_on);
+}
+
+fn flag_a_virtual_plc_which_goes_on() -> Result<(), f64> {
     let (_dir, run_plant, model) = learned_virtual_plc();
-    let (plc, port) = virtual_plc(model, "140s", Some("F2@40s"));
+    let (mut plc, port) = virtual_plc(model, "140s", Some("F2@40s"));
     let mut mon = monitor_at_4x(run_plant, model, port, "33s");
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(30));
-    let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
+    let Some(certain) = certain else {
+        let late = most_late_ms(&mut plc);
+        if late > VIRTUAL_LATE_MS {
+            return Err(late);
+        }
+        panic!("F2 never certain: {:?}", mon.seen);
+    };
     assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
     assert!(certain.contains("def_C4"), "{certain}");
     let status = mon.child.wait().expect("the monitor ends");
@@ -316,6 +386,7 @@ fn the_monitor_flags_a_virtual_plc_which_goes_on_safely() {
     // Some 90 s of line after the flag at ~300 boxes/h: about seven boxes.
     let since = summary["delivered_since_flag"].as_u64().expect("a count");
     assert!(since >= 4, "{summary}");
+    Ok(())
 }
 
 /// A monitor started afresh finds `def_C4` up on the PLC (raised by an earlier
@@ -476,24 +547,27 @@ fn a_slow_network_gives_no_verdict_and_writes_no_flag() {
     .into_iter()
     .enumerate()
     {
-        // A run is evidence only if the simulated plant kept real time: on a
-        // loaded machine the virtual PLC can fall behind, and its edges then
-        // come late for any observer. Such a run is made again.
-        let mut attempts = 0;
-        while !slow_network_run(plant, model, seconds, run, faults.clone()) {
-            attempts += 1;
-            assert!(
-                attempts < 3,
-                "the virtual PLC fell behind real time in 3 runs"
-            );
-        }
+        let what = format!("slow network {}", faults.delay_share);
+        on_time(&what, || {
+            slow_network_run(plant, model, seconds, run, faults.clone())
+        });
     }
 }
 
-/// One run of [`a_slow_network_gives_no_verdict_and_writes_no_flag`]: `false`
-/// when the virtual PLC fell behind real time (the run proves nothing),
-/// `true` when it kept time and the monitor gave no verdict and no flag.
-fn slow_network_run(plant: &Path, model: &Path, seconds: u64, run: usize, faults: Faults) -> bool {
+/// The virtual PLC's lateness that the model learned for it tolerates: half
+/// the margin its guards were widened by (`learn --margin 50ms`).
+const VIRTUAL_LATE_MS: f64 = 25.0;
+
+/// One run of [`a_slow_network_gives_no_verdict_and_writes_no_flag`]: `Err`
+/// when the virtual PLC fell behind real time (the run proves nothing), `Ok`
+/// when it kept time and the monitor gave no verdict and no flag.
+fn slow_network_run(
+    plant: &Path,
+    model: &Path,
+    seconds: u64,
+    run: usize,
+    faults: Faults,
+) -> Result<(), f64> {
     let share = faults.delay_share;
     // In real time: a scheduling hiccup of this machine (15 ms seen on an idle
     // one) is then 15 ms of the plant's time, not 60 as at 4×.
@@ -506,11 +580,9 @@ fn slow_network_run(plant: &Path, model: &Path, seconds: u64, run: usize, faults
     let status = mon.child.wait().expect("the monitor ends");
     let _ = mon.wait_for("never printed", Duration::from_millis(200));
     let err = mon.stderr();
-    // Two PLC scans of lag are within what the model's guards allow for.
     let lag = most_late_ms(&mut plc);
-    if lag > 20.0 {
-        eprintln!("{share}: the virtual PLC fell {lag} ms behind real time; the run is made again");
-        return false;
+    if lag > VIRTUAL_LATE_MS {
+        return Err(lag);
     }
     assert!(status.success(), "{err}");
     let stats = proxy.stats();
@@ -522,7 +594,7 @@ fn slow_network_run(plant: &Path, model: &Path, seconds: u64, run: usize, faults
     );
     assert!(err.contains("flags: none"), "{share}: {err}");
     assert!(!err.contains("flags written to the PLC: def_"), "{err}");
-    true
+    Ok(())
 }
 
 /// Stops the virtual PLC and reads, from its summary, how far behind real
@@ -545,6 +617,13 @@ fn most_late_ms(plc: &mut Child) -> f64 {
 #[test]
 fn a_slow_network_still_flags_a_stuck_sensor_within_two_seconds() {
     let _serial = serial();
+    on_time(
+        "slow network, C4 stuck",
+        flag_a_stuck_sensor_through_a_slow_network,
+    );
+}
+
+fn flag_a_stuck_sensor_through_a_slow_network() -> Result<(), f64> {
     let (_dir, plant, model) = learned_virtual_plc();
     let (mut plc, port) = virtual_plc(model, "200s", Some("F2@60s"));
     let faults = Faults::delays(
@@ -558,7 +637,13 @@ fn a_slow_network_still_flags_a_stuck_sensor_within_two_seconds() {
     let mut mon = monitor_at_4x(plant, model, proxy.port(), "40s");
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(40));
     let seen_at = std::time::SystemTime::now();
-    let certain = certain.unwrap_or_else(|| panic!("F2 never certain: {:?}", mon.seen));
+    let Some(certain) = certain else {
+        let late = most_late_ms(&mut plc);
+        if late > VIRTUAL_LATE_MS {
+            return Err(late);
+        }
+        panic!("F2 never certain: {:?}", mon.seen);
+    };
     assert!(certain.contains("def_C4"), "{certain}");
     // The verdict's time is on the monitor's live clock: the wall clock at its
     // start, running 4 times faster.
@@ -576,9 +661,13 @@ fn a_slow_network_still_flags_a_stuck_sensor_within_two_seconds() {
         .as_secs_f64();
     let waited = now - wall_of_evidence;
     eprintln!("F2 came {waited:.3} s after its evidence");
-    assert!(waited < 2.0, "F2 came {waited:.3} s after its evidence");
     let status = mon.child.wait().expect("the monitor ends");
     let err = mon.stderr();
+    let late = most_late_ms(&mut plc);
+    if late > VIRTUAL_LATE_MS {
+        return Err(late);
+    }
+    assert!(waited < 2.0, "F2 came {waited:.3} s after its evidence");
     assert!(status.success(), "{err}");
     assert!(err.contains("flags written to the PLC: def_C4"), "{err}");
     assert!(err.contains("def_C4 raised at"), "{err}");
@@ -587,8 +676,7 @@ fn a_slow_network_still_flags_a_stuck_sensor_within_two_seconds() {
         "{:?}",
         mon.seen
     );
-    let _ = plc.kill();
-    let _ = plc.wait();
+    Ok(())
 }
 
 /// Seconds since the epoch of an RFC 3339 UTC time (`…T05:00:00.010Z`).

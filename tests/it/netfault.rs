@@ -168,6 +168,12 @@ fn assert_plausible_share(count: u64, share: f64) {
     );
 }
 
+/// How late the proxy may release a delayed reply. Its timer is exact to a
+/// millisecond on an idle machine; the test binary's other threads, on two
+/// cores, have been seen to add 20 ms. A proxy that polled, or slept on top
+/// of the delay, would be late by a whole period or delay.
+const MOST_LATE: Duration = Duration::from_millis(50);
+
 #[test]
 fn in_order_delays_hold_later_replies_back() {
     let _serial = serial();
@@ -186,7 +192,7 @@ fn in_order_delays_hold_later_replies_back() {
         "{:?}",
         st.max_delay
     );
-    assert!(st.max_late < 20 * MS, "sender late by {:?}", st.max_late);
+    assert!(st.max_late < MOST_LATE, "sender late by {:?}", st.max_late);
 }
 
 #[test]
@@ -216,8 +222,8 @@ fn reorder_mode_lets_later_replies_overtake() {
         st.delayed
     );
     let max_rtt = replies.iter().map(|r| r.rtt).max().unwrap();
-    assert!(max_rtt <= 340 * MS, "{max_rtt:?}");
-    assert!(st.max_late < 20 * MS, "sender late by {:?}", st.max_late);
+    assert!(max_rtt <= 300 * MS + MOST_LATE + 20 * MS, "{max_rtt:?}");
+    assert!(st.max_late < MOST_LATE, "sender late by {:?}", st.max_late);
 }
 
 #[test]

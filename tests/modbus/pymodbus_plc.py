@@ -5,7 +5,9 @@ gardefou's plant files (sensors: discrete inputs 0, 1, ... in file order;
 actuators: coils 0, 1, ...; flags: coils from 100, every def_ flag in
 partition order, then every suspect_ flag), replaying the log's events between
 two times at a chosen speed. Every flag coil a client writes is printed on
-stdout as one JSON line, e.g. {"flag": "def_C4", "coil": 100, "value": true}.
+stdout as one JSON line, e.g. {"flag": "def_C4", "coil": 100, "value": true};
+the last line gives how far behind the log's times the replay fell at worst,
+e.g. {"end": true, "most_late_ms": 1.2}.
 
 Usage: pymodbus_plc.py PLANT.toml EVENTS.csv PORT FROM_MS TO_MS SPEED [FLAG...]
 
@@ -63,18 +65,25 @@ class Device(ModbusSlaveContext):
 
 async def replay(device, places, events, start_ms, end_ms, speed):
     origin = time.monotonic()
+    # How far behind the log's times an event was served at worst, in the
+    # log's milliseconds: a loaded machine makes the replay late, and a late
+    # edge is a different run for any observer.
+    most_late_ms = 0.0
     for t, name, value in events:
         if t <= start_ms:
             continue
         if t > end_ms:
             break
-        delay = (t - start_ms) / 1000.0 / speed - (time.monotonic() - origin)
+        due = (t - start_ms) / 1000.0 / speed
+        delay = due - (time.monotonic() - origin)
         if delay > 0:
             await asyncio.sleep(delay)
         table, address = places[name]
         device.setValues(2 if table == "di" else 1, address, [value])
+        late = (time.monotonic() - origin - due) * 1000.0 * speed
+        most_late_ms = max(most_late_ms, late)
     await asyncio.sleep(2.0)
-    print(json.dumps({"end": True}), flush=True)
+    print(json.dumps({"end": True, "most_late_ms": round(most_late_ms, 3)}), flush=True)
     asyncio.get_running_loop().stop()
 
 
