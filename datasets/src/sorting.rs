@@ -53,6 +53,8 @@ const C8_AT: f64 = 0.55;
 const C9_AT: f64 = -2.45;
 const C10_AT: f64 = 2.45;
 const EVAC_END: f64 = 2.5;
+/// Two boxes closer than this (m) are still in contact.
+const CONTACT_GAP: f64 = 0.005;
 /// Turntable position thresholds: C4 is on at or below P4, C5 at or above P5.
 const P4: f64 = 0.02;
 const P5: f64 = 0.98;
@@ -493,6 +495,13 @@ impl SortingLine {
         self.remove(&lost);
     }
 
+    /// The gap between two boxes in the same frame (negative if they overlap).
+    fn gap(&self, a: u64, b: u64) -> Option<f64> {
+        let find = |id| self.boxes.iter().find(|x| x.id == id);
+        let (a, b) = (find(a)?, find(b)?);
+        (a.frame == b.frame).then(|| (b.lo - a.hi()).max(a.lo - b.hi()))
+    }
+
     fn remove(&mut self, ids: &[u64]) {
         if !ids.is_empty() {
             self.lost += ids.len() as u64;
@@ -545,6 +554,14 @@ impl SortingLine {
                 });
             }
             contacts.push(pair);
+        }
+        // Boxes jammed three in a row swap places as neighbours from scan to
+        // scan: a pair stays in contact while its boxes stay within a few
+        // millimetres, so that one jam counts as one collision per pair.
+        for &(a, b) in &self.contacts {
+            if !contacts.contains(&(a, b)) && self.gap(a, b).is_some_and(|g| g < CONTACT_GAP) {
+                contacts.push((a, b));
+            }
         }
         self.contacts = contacts;
 
