@@ -13,9 +13,10 @@
 //! 4. checks every safety constraint on those orders. A violated one is reported
 //!    with the literals that made it true, and every order then takes the value
 //!    the constraints force, with priority to 0 (the *fallback*, `Sk = f1k`);
-//! 5. sends a part to the fallback while one of its actuator or element faults is
-//!    flagged (`def_<partition>`): its orders are those the constraints force to 1,
-//!    e.g. A4 stays on while a box sits on the turntable at the unloading position.
+//! 5. sends a part to the fallback while one of its actuator or element faults,
+//!    or a fault of one of its sensors that has no temporal estimate, is flagged
+//!    (`def_<partition>`): its orders are those the constraints force to 1, e.g.
+//!    A4 stays on while a box sits on the turntable at the unloading position.
 //!
 //! With coupling on, the safety constraints are rewritten by [`crate::rewrite`]:
 //! a flagged sensor's literals read its temporal estimate, conservatively. The
@@ -36,7 +37,7 @@ use std::fmt;
 use diagnoser::expr::Expr;
 use diagnoser::model::Model;
 use diagnoser::plant::{Constraint, ObserverRule, Part};
-use diagnoser::{FaultTemplate, Plant, SignalKind, Time};
+use diagnoser::{FaultTemplate, Plant, SignalId, SignalKind, Time};
 
 use crate::rewrite::{Estimate, RewriteOptions, rewrite};
 use crate::synthesis::{CombinedLaw, OutputLaw, output_law};
@@ -99,6 +100,20 @@ pub struct ScanOutcome {
     pub fallback: bool,
     /// Parts sent to the fallback by a flagged actuator or element fault.
     pub parts_in_fallback: Vec<usize>,
+    /// What became of each order asked for with [`Filter::request`]: the
+    /// output and the outcome, in the order of the outputs.
+    pub requests: Vec<(String, Request)>,
+}
+
+/// What a scan did with an order asked for from outside the control (a
+/// probing move, see [`Filter::request`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Request {
+    /// The output took the requested value.
+    Applied,
+    /// The requested value would have violated these constraints; the output
+    /// kept the value the control computed.
+    Refused(Vec<Violation>),
 }
 
 /// A compiled expression: names resolved to slots of the filter's variables.
@@ -228,6 +243,8 @@ pub struct Filter {
     estimates: Vec<Estimate>,
     coupling: Coupling,
     started: bool,
+    /// Orders asked for from outside the control, per output (as `laws`).
+    requested: Vec<Option<bool>>,
     /// Scratch: the orders being computed.
     orders: Vec<bool>,
 }
@@ -339,6 +356,30 @@ fn estimates_and_clocks(
         }
     }
     Ok((estimates, clocks))
+}
+
+/// The sensors of the plant's sensor-fault partitions that have no learned
+/// estimate: declared failed or suspected, they may read anything.
+fn unestimated_sensors(plant: &Plant, learned: &[Estimate]) -> Vec<Estimate> {
+    let mut out: Vec<Estimate> = Vec::new();
+    for f in &plant.faults {
+        let (FaultTemplate::Stuck0(s)
+        | FaultTemplate::Stuck1(s)
+        | FaultTemplate::UnexpectedRise(s)
+        | FaultTemplate::UnexpectedFall(s)) = &f.template
+        else {
+            continue;
+        };
+        let known = |e: &Estimate| &e.sensor == s;
+        if plant.partition_of(&f.label).is_none()
+            || learned.iter().any(known)
+            || out.iter().any(known)
+        {
+            continue;
+        }
+        out.push(Estimate::any_value(s, &sensor_partition(plant, s)));
+    }
+    out
 }
 
 /// `!rewrite(!e)`: the rewritten expression holds only where it holds whatever
@@ -510,13 +551,17 @@ fn part_fallbacks(
     coupling: Coupling,
     index: &HashMap<String, usize>,
     actuators: &[usize],
+    estimates: &[Estimate],
 ) -> Vec<(Vec<usize>, Vec<usize>)> {
     let mut part_fallback = Vec::new();
     for part in &plant.parts {
         let mut flags = Vec::new();
         if coupling != Coupling::None {
             for p in &plant.partitions {
-                if p.faults.iter().any(|label| stops_part(plant, part, label)) {
+                if p.faults
+                    .iter()
+                    .any(|label| stops_part(plant, part, label, estimates))
+                {
                     flags.push(index[&p.flag().to_string()]);
                 }
             }
@@ -531,20 +576,28 @@ fn part_fallbacks(
     part_fallback
 }
 
-/// Whether the fault `label` is an actuator or element fault of `part`: a
-/// stuck actuator of the part, or its element blocked.
-fn stops_part(plant: &Plant, part: &Part, label: &str) -> bool {
+/// Whether the fault `label` stops `part` once declared: a stuck actuator of
+/// the part, its element blocked, or a fault of one of its sensors that has no
+/// temporal estimate (its edges follow the workpieces, not a command, so
+/// nothing can stand in for its reading).
+fn stops_part(plant: &Plant, part: &Part, label: &str, estimates: &[Estimate]) -> bool {
+    let own = |names: &[SignalId], s: &str| names.iter().any(|x| plant.signals.name(*x) == s);
     plant.faults.iter().any(|f| {
         f.label == label
             && match &f.template {
                 FaultTemplate::ActuatorStuck0(a) | FaultTemplate::ActuatorStuck1(a) => {
-                    part.actuators.iter().any(|x| plant.signals.name(*x) == a)
+                    own(&part.actuators, a)
+                }
+                FaultTemplate::Stuck0(s)
+                | FaultTemplate::Stuck1(s)
+                | FaultTemplate::UnexpectedRise(s)
+                | FaultTemplate::UnexpectedFall(s) => {
+                    own(&part.sensors, s) && !estimates.iter().any(|e| &e.sensor == s)
                 }
                 FaultTemplate::BlockedAt { element, .. }
                 | FaultTemplate::BlockedBetween { element, .. } => {
                     part.element.as_deref() == Some(element.as_str())
                 }
-                _ => false,
             }
     })
 }
@@ -596,19 +649,29 @@ impl Filter {
         let options = RewriteOptions {
             use_suspects: coupling == Coupling::FlagsAndSuspects,
         };
+        // Learned estimates, then every other sensor a flag can declare failed,
+        // which may then read anything.
+        let readings: Vec<Estimate> = match coupling {
+            Coupling::None => Vec::new(),
+            _ => estimates
+                .iter()
+                .cloned()
+                .chain(unestimated_sensors(plant, &estimates))
+                .collect(),
+        };
         let safety = compile_constraints(&plant.constraints, &index, &actuators, |e| {
-            rewrite(e, &estimates, options)
+            rewrite(e, &readings, options)
         })?;
         let functional = compile_constraints(&plant.functional, &index, &actuators, |e| {
-            if estimates.is_empty() {
+            if readings.is_empty() {
                 e.clone()
             } else {
-                rewrite_certain(e, &estimates, options)
+                rewrite_certain(e, &readings, options)
             }
         })?;
         let (laws, combined) = laws_and_combined(plant, &safety, &functional, &actuators)?;
         let observers = compile_observers(plant, &index)?;
-        let part_fallback = part_fallbacks(plant, coupling, &index, &actuators);
+        let part_fallback = part_fallbacks(plant, coupling, &index, &actuators, &estimates);
         let n = names.len();
         let mut cur = vec![false; n];
         for o in &plant.observers {
@@ -636,6 +699,7 @@ impl Filter {
             estimates,
             coupling,
             started: false,
+            requested: Vec::new(),
             orders: Vec::new(),
         })
     }
@@ -754,6 +818,7 @@ impl Filter {
         for (k, &a) in self.actuators.iter().enumerate() {
             self.cur[a] = self.orders[k];
         }
+        self.apply_requests(&mut outcome.requests);
         outcome.violated = self.violated_now();
         if !outcome.violated.is_empty() {
             outcome.fallback = true;
@@ -777,6 +842,54 @@ impl Filter {
         }
         self.note_orders(t);
         outcome
+    }
+
+    /// Asks for `actuator` at `value` from the next scan on, instead of the
+    /// control's order, as long as no safety constraint (as rewritten by the
+    /// flags) forbids it; `None` gives the output back to the control. False
+    /// if `actuator` is not an output of the filter.
+    ///
+    /// Each scan checks the requested values in the order of the outputs,
+    /// each against every safety constraint with the orders as they stand; a
+    /// refused request leaves the control's order, and
+    /// [`ScanOutcome::requests`] says which constraints refused it.
+    pub fn request(&mut self, actuator: &str, value: Option<bool>) -> bool {
+        let Some(k) = self
+            .index
+            .get(actuator)
+            .and_then(|&i| self.actuators.iter().position(|&a| a == i))
+        else {
+            return false;
+        };
+        if self.requested.len() < self.actuators.len() {
+            self.requested.resize(self.actuators.len(), None);
+        }
+        self.requested[k] = value;
+        true
+    }
+
+    /// Applies each requested order where no constraint forbids it.
+    fn apply_requests(&mut self, outcome: &mut Vec<(String, Request)>) {
+        for k in 0..self.requested.len() {
+            let Some(value) = self.requested[k] else {
+                continue;
+            };
+            let a = self.actuators[k];
+            let request = if self.orders[k] == value {
+                Request::Applied
+            } else {
+                self.cur[a] = value;
+                let violated = self.violated_now();
+                if violated.is_empty() {
+                    self.orders[k] = value;
+                    Request::Applied
+                } else {
+                    self.cur[a] = self.orders[k];
+                    Request::Refused(violated)
+                }
+            };
+            outcome.push((self.names[a].clone(), request));
+        }
     }
 
     /// Restarts each part's clock where its orders changed in this scan.

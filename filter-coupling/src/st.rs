@@ -6,12 +6,15 @@
 //! before writing the outputs.
 //!
 //! - `VAR_INPUT`: every sensor, the control program's proposed orders (`A4_REQ`),
-//!   and the flags the diagnosers' monitor writes (`def_C4`, `suspect_C4`: only
-//!   those the filter reads).
+//!   the flags the diagnosers' monitor writes (`def_C4`, `suspect_C4`: only
+//!   those the filter reads), and, when coupled, a probing move per output
+//!   (`A4_PROBE`, `A4_PROBE_VALUE`), taken unless a safety constraint would
+//!   then hold (`A4_PROBE_REFUSED` out), as [`Filter::request`] does.
 //! - `VAR_OUTPUT`: the orders to write (`A4`), one `<constraint>_VIOLATED` per
 //!   safety constraint, `FALLBACK` (a constraint was violated: every order took
 //!   the value the constraints force, priority to 0), and `FALLBACK_<part>` (a
-//!   part's actuator or element fault is flagged: its orders took that value).
+//!   fault of the part's actuators, element, or of a sensor of it that has no
+//!   estimate, is flagged: its orders took that value).
 //! - `VAR`: observers, previous values (`C3_PREV`, for edges and `prev`), the
 //!   forced values `A4_F0` / `A4_F1`, and per clocked part a TON and the
 //!   intervals `I1…In`.
@@ -707,6 +710,9 @@ impl<'a> Gen<'a> {
         } else {
             self.write_proposed_orders(out, &actuators)?;
         }
+        if self.filter.coupling() != crate::filter::Coupling::None {
+            self.write_probes(out, &actuators, &mut facts)?;
+        }
         self.write_check(out, &mut facts)?;
         self.write_fallback(out, &actuators, &forced)?;
         self.write_part_fallbacks(out, &forced, &mut facts)?;
@@ -947,6 +953,40 @@ impl<'a> Gen<'a> {
             let id = self.id(a)?;
             self.req_used.borrow_mut().insert(a.clone());
             let _ = writeln!(out, "{id} := {}_REQ;", stem(a));
+        }
+        Ok(())
+    }
+
+    /// Probing moves asked for from outside the control, as
+    /// [`Filter::request`] applies them: output by output, the requested value
+    /// replaces the order unless a safety constraint would then hold.
+    fn write_probes(
+        &self,
+        out: &mut String,
+        actuators: &[String],
+        facts: &mut BodyFacts,
+    ) -> Result<(), String> {
+        out.push_str(
+            "\n(* Probing moves requested from outside the control (A_PROBE, A_PROBE_VALUE): each output,\n   in turn, takes its requested value unless a safety constraint would then hold. *)\n",
+        );
+        let mut constraints = Vec::new();
+        for (_, expr) in self.filter.safety_constraints() {
+            constraints.push(self.translate(expr, Ctx::Orders)?);
+        }
+        let any = reduce(&Expr::Or(constraints));
+        for a in actuators {
+            let (id, st) = (self.id(a)?, stem(a));
+            let refused = format!("{st}_PROBE_REFUSED");
+            let _ = writeln!(
+                out,
+                "{refused} := FALSE;\nIF {st}_PROBE AND ({id} XOR {st}_PROBE_VALUE) THEN\n    {id} := {st}_PROBE_VALUE;"
+            );
+            out.push_str(&wrapped("    ", &format!("{refused} := "), &any, ";\n"));
+            let _ = writeln!(
+                out,
+                "    IF {refused} THEN\n        {id} := NOT {st}_PROBE_VALUE;\n    END_IF;\nEND_IF;"
+            );
+            facts.probes.push(a.clone());
         }
         Ok(())
     }
@@ -1249,6 +1289,9 @@ struct BodyFacts {
     timed: BTreeSet<String>,
     /// Parts whose clock needs its "started" flag.
     set_used: BTreeSet<String>,
+    /// Outputs that take probing moves (`<A>_PROBE`, `<A>_PROBE_VALUE` in,
+    /// `<A>_PROBE_REFUSED` out).
+    probes: Vec<String>,
 }
 
 /// Per output, what the constraints force on it, `(f0, f1)`, as the orders
@@ -1270,7 +1313,7 @@ pub fn generate(plant: &Plant, filter: &Filter, options: &StOptions) -> Result<S
 
     let mut out = String::new();
     g.write_header(&mut out);
-    g.write_inputs(&mut out, &req_in_body)?;
+    g.write_inputs(&mut out, &req_in_body, &facts)?;
     g.write_outputs(&mut out, &facts)?;
     // The first scan's block is empty when it has nothing to set.
     g.write_locals(&mut out, &facts, !head.is_empty(), &ordered)?;
@@ -1384,7 +1427,12 @@ impl<'a> Gen<'a> {
     /// `VAR_INPUT`: every sensor, the proposed orders read (`req_in_body`: those
     /// the body reads; the others only at the first scan), and the flags and
     /// internal variables read.
-    fn write_inputs(&self, out: &mut String, req_in_body: &BTreeSet<String>) -> Result<(), String> {
+    fn write_inputs(
+        &self,
+        out: &mut String,
+        req_in_body: &BTreeSet<String>,
+        facts: &BodyFacts,
+    ) -> Result<(), String> {
         let plant = self.plant;
         out.push_str("VAR_INPUT\n");
         for s in plant.signals.of_kind(SignalKind::Sensor) {
@@ -1412,6 +1460,14 @@ impl<'a> Gen<'a> {
                     comment_text(&s.description)
                 );
             }
+        }
+        for a in &facts.probes {
+            let st = stem(a);
+            let _ = writeln!(
+                out,
+                "    {st}_PROBE : BOOL; (* a probing move of {} is requested *)\n    {st}_PROBE_VALUE : BOOL; (* the value it asks for *)",
+                comment_text(a)
+            );
         }
         let read = self.read.borrow().clone();
         for n in self.filter.names() {
@@ -1453,6 +1509,14 @@ impl<'a> Gen<'a> {
         out.push_str(
             "    FALLBACK : BOOL; (* a safety constraint was violated: every order took f1k *)\n",
         );
+        for a in &facts.probes {
+            let _ = writeln!(
+                out,
+                "    {}_PROBE_REFUSED : BOOL; (* the probing move of {} was refused: a constraint forbids it *)",
+                stem(a),
+                comment_text(a)
+            );
+        }
         for (bit, part) in &facts.part_bits {
             let _ = writeln!(
                 out,

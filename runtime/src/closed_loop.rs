@@ -8,11 +8,14 @@ use datasets::sim::{Controller, Damage, MemorySink, Physics, ScanSink, SimConfig
 use datasets::sorting::{SortingConfig, SortingLine};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
 use diagnoser::model::Model;
-use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time};
+use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time, TimeFormat, TimeUnit};
 use filter_coupling::filter::{Coupling, Filter, Mode};
+use learning::learn::{LearnOptions, Learner};
+use logs::LogStream;
 use rand_chacha::ChaCha8Rng;
 
 use crate::flags::FlagBoard;
+use crate::probe::{self, Probe};
 
 /// No delivery for this long while boxes wait counts as halted, beyond it.
 pub const HALT_AFTER: Time = 60 * diagnoser::SECOND;
@@ -30,6 +33,8 @@ pub struct LoopRun {
     pub fault: Option<Injection>,
     /// Where throughput, damage and halts start being counted (the onset).
     pub from: Time,
+    /// Whether the coupling may make probing moves ([`crate::probe`]).
+    pub probe: bool,
 }
 
 /// What a closed-loop run measured, from [`LoopRun::from`] on.
@@ -48,6 +53,32 @@ pub struct LoopOutcome {
     pub fallback_scans: u64,
     /// The flags raised by the end.
     pub flags: Vec<String>,
+    /// When each box was delivered, from the start of the run (not only from
+    /// [`LoopRun::from`]): a fault-free run counted from any onset.
+    pub deliveries: Vec<Time>,
+    /// The probing moves made, each with the reason of the verdict it led to.
+    pub probes: Vec<ProbeRecord>,
+    /// Why no probe was made for an ambiguous, waiting part, once per reason.
+    pub no_probe: Vec<String>,
+}
+
+/// A probing move and what it told.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeRecord {
+    /// When the move began.
+    pub t: Time,
+    /// The part.
+    pub part: String,
+    /// `released A4 to tell F3, F11 apart (2.9 s after the move: …), so F3`.
+    pub reason: String,
+}
+
+impl LoopOutcome {
+    /// Boxes delivered from `from` on.
+    pub fn delivered_from(&self, from: Time) -> u64 {
+        let before = self.deliveries.partition_point(|&t| t < from);
+        (self.deliveries.len() - before) as u64
+    }
 }
 
 /// The PLC of the closed loop: filter-based safe control plus the diagnosers.
@@ -66,6 +97,28 @@ pub struct CoupledPlc {
     from: Time,
     fallback_scans: u64,
     verdicts: Vec<Verdict>,
+    /// Probing, when on: the plant and what it watches.
+    probing: Option<Probing>,
+}
+
+/// What the coupling watches to probe: per part, its last verdict, since when
+/// it and the part's orders are unchanged, and whether it was searched.
+#[derive(Clone)]
+struct Probing {
+    plant: Plant,
+    parts: Vec<PartWatch>,
+    active: Option<Probe>,
+    probes: Vec<ProbeRecord>,
+    no_probe: Vec<String>,
+}
+
+#[derive(Clone, Default)]
+struct PartWatch {
+    verdict: Option<Verdict>,
+    since: Time,
+    orders: Vec<bool>,
+    orders_since: Time,
+    searched: bool,
 }
 
 impl CoupledPlc {
@@ -84,7 +137,20 @@ impl CoupledPlc {
             from,
             fallback_scans: 0,
             verdicts: Vec::new(),
+            probing: None,
         }
+    }
+
+    /// Lets the coupling make probing moves on `plant`'s parts ([`crate::probe`]).
+    pub fn with_probing(mut self, plant: &Plant) -> CoupledPlc {
+        self.probing = Some(Probing {
+            plant: plant.clone(),
+            parts: vec![PartWatch::default(); plant.parts.len()],
+            active: None,
+            probes: Vec::new(),
+            no_probe: Vec::new(),
+        });
+        self
     }
 
     /// The filter, to set flags from outside the diagnosers (e.g. a Modbus
@@ -108,6 +174,9 @@ impl CoupledPlc {
             }
             if self.detected.is_none() && v.t >= self.from {
                 self.detected = Some(v.t);
+            }
+            if let Some(p) = self.probing.as_mut() {
+                p.note_verdict(&v, &mut self.filter);
             }
             self.board.update(&v);
         }
@@ -164,6 +233,85 @@ impl Controller for CoupledPlc {
             }
             diagnoser.advance_to(t, &mut out);
         }
+        if let (Some(p), Some(d)) = (self.probing.as_mut(), self.diagnoser.as_ref()) {
+            p.scan(t, io, &mut self.filter, d);
+        }
+    }
+}
+
+impl Probing {
+    /// A part's new verdict: it answers the probe under way if its labels
+    /// changed, and the part's wait starts again.
+    fn note_verdict(&mut self, v: &Verdict, filter: &mut Filter) {
+        let Some(i) = self.plant.parts.iter().position(|p| p.name == v.part) else {
+            return;
+        };
+        if let Some(probe) = &self.active
+            && probe.part == v.part
+            && v.t >= probe.from
+            && v.labels != probe.candidates
+        {
+            self.probes.push(ProbeRecord {
+                t: probe.from,
+                part: probe.part.clone(),
+                reason: probe.outcome(v),
+            });
+            filter.request(&probe.actuator, None);
+            self.active = None;
+        }
+        let w = &mut self.parts[i];
+        w.verdict = Some(v.clone());
+        w.since = v.t;
+        w.searched = false;
+    }
+
+    /// After a scan's orders and diagnosis: ends a probe that silence has
+    /// left unanswered, or looks for one where a part waits, ambiguous.
+    fn scan(&mut self, t: Time, io: &[bool], filter: &mut Filter, diagnoser: &PlantDiagnoser) {
+        for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
+            let orders: Vec<bool> = part.actuators.iter().map(|a| io[a.index()]).collect();
+            if orders != w.orders {
+                // The situation moved on: once it waits again, search again.
+                w.orders = orders;
+                w.orders_since = t;
+                w.searched = false;
+            }
+        }
+        if let Some(probe) = &self.active {
+            if t > probe.until + probe::PATIENCE {
+                self.probes.push(ProbeRecord {
+                    t: probe.from,
+                    part: probe.part.clone(),
+                    reason: format!("{}: no verdict change", probe.describe()),
+                });
+                filter.request(&probe.actuator, None);
+                self.active = None;
+            }
+            return;
+        }
+        for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
+            let Some(v) = &w.verdict else { continue };
+            let waiting = t >= w.since + probe::PATIENCE && t >= w.orders_since + probe::PATIENCE;
+            if w.searched || !waiting || !probe::worth_probing(v) {
+                continue;
+            }
+            w.searched = true;
+            match probe::search(&self.plant, part, filter, diagnoser, v, t, io) {
+                Ok(p) => {
+                    filter.request(&p.actuator, Some(p.value));
+                    self.active = Some(p);
+                    return;
+                }
+                Err(reasons) => {
+                    for r in reasons {
+                        let line = format!("{} ({}): {r}", part.name, v.labels.join(", "));
+                        if !self.no_probe.contains(&line) {
+                            self.no_probe.push(line);
+                        }
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -175,6 +323,7 @@ pub(crate) struct Watched {
     last_progress: Time,
     halted: Time,
     last_t: Option<Time>,
+    deliveries: Vec<Time>,
 }
 
 impl Watched {
@@ -187,6 +336,7 @@ impl Watched {
             last_progress: 0,
             halted: 0,
             last_t: None,
+            deliveries: Vec::new(),
         }
     }
 
@@ -206,6 +356,9 @@ impl Physics for Watched {
     fn advance(&mut self, t: Time, act: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>) {
         let before = self.line.delivered();
         self.line.advance(t, act, rng, damage);
+        for _ in before..self.line.delivered() {
+            self.deliveries.push(t);
+        }
         if t <= self.from {
             self.delivered_before = self.line.delivered();
             self.last_progress = t;
@@ -246,10 +399,31 @@ pub fn record(plant: &Plant, seed: u64, duration: Time) -> Result<MemorySink, St
         duration,
         fault: None,
         from: 0,
+        probe: false,
     };
     let mut sink = MemorySink::default();
     simulate(plant, None, &run, &mut sink)?;
     Ok(sink)
+}
+
+/// A model of `plant` learned from `duration` of fault-free operation under
+/// safe control by constraints, seed `seed` ([`record`]).
+pub fn learned(plant: &Plant, seed: u64, duration: Time) -> Result<Model, String> {
+    let normal = record(plant, seed, duration)?;
+    let mut learner = Learner::new(plant, LearnOptions::default())?;
+    learner
+        .learn_log(
+            LogStream::from_events(
+                "simulated fault-free run",
+                TimeFormat::Numeric(TimeUnit::Ms),
+                normal.start,
+                normal.initial.clone(),
+                normal.events,
+            ),
+            |_| {},
+        )
+        .map_err(|e| e.to_string())?;
+    Ok(learner.finish())
 }
 
 /// Runs the sorting line in closed loop with `model`'s diagnosers and estimates.
@@ -269,6 +443,9 @@ fn simulate(
         None => None,
     };
     let mut plc = CoupledPlc::new(filter, diagnoser, run.from);
+    if run.probe {
+        plc = plc.with_probing(plant);
+    }
     let mut physics = Watched::new(run.from);
     let config = SimConfig {
         duration: run.duration,
@@ -289,5 +466,11 @@ fn simulate(
         halted: physics.halted,
         fallback_scans: plc.fallback_scans,
         flags: plc.board.raised().to_vec(),
+        deliveries: physics.deliveries,
+        probes: plc
+            .probing
+            .as_ref()
+            .map_or_else(Vec::new, |p| p.probes.clone()),
+        no_probe: plc.probing.map_or_else(Vec::new, |p| p.no_probe),
     })
 }

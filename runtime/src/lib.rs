@@ -13,6 +13,8 @@
 //! - [`closed_loop`]: the demo's loop (`gardefou demo`): the simulated sorting
 //!   line, safe control through the rewritten filter, the diagnosers, and
 //!   their flags back to the filter.
+//! - [`probe`]: active diagnosis: a move of an ambiguous, waiting part that the
+//!   filter allows under every candidate and whose outcome separates them.
 //!
 //! It takes plain settings (no command-line parsing) and returns
 //! [`diagnoser::Failure`].
@@ -24,4 +26,5 @@
 pub mod closed_loop;
 pub mod flags;
 pub mod monitor;
+pub mod probe;
 pub mod virtual_plc;

@@ -23,7 +23,7 @@ use datasets::sim::{Controller, ScanSink, SimConfig};
 use datasets::sorting::{SortingConfig, SortingLine, SynthesisedControl, plant};
 use diagnoser::model::Model;
 use diagnoser::{MS, Plant, SECOND, SignalKind, Time};
-use filter_coupling::filter::{Coupling, Filter, Mode};
+use filter_coupling::filter::{Coupling, Filter, Mode, Request};
 use filter_coupling::st::{StOptions, generate};
 use learning::learn::{LearnOptions, Learner};
 use logs::{IngestOptions, open};
@@ -540,6 +540,9 @@ const BENCH_MODEL: &str = r#"{
 struct RandomStats {
     fallbacks: u64,
     part_fallbacks: u64,
+    /// Scans with a probing move applied, or refused, per output.
+    probes_applied: u64,
+    probes_refused: u64,
     /// Scans where each interval held.
     intervals: BTreeMap<String, u64>,
 }
@@ -608,6 +611,9 @@ fn random_runs(
             // the scan before, so the first scan has no edge.
             let mut proposed: Vec<bool> = actuators.iter().map(|_| next() % 2 == 0).collect();
             let mut raised = vec![false; flags.len()];
+            // Probing moves, on a coupled filter: requested, changed and
+            // given back at random.
+            let probing = coupling != Coupling::None;
             let mut mismatches = Vec::new();
             for scan in 0..scans {
                 let t = scan * SCAN;
@@ -638,6 +644,19 @@ fn random_runs(
                         fb.set(&req, p);
                     }
                 }
+                if probing {
+                    for (_, name) in &actuators {
+                        if next() % 50 == 0 {
+                            let value = match next() % 3 {
+                                0 => None,
+                                v => Some(v == 2),
+                            };
+                            assert!(filter.request(name, value), "{name}");
+                            fb.set(&format!("{name}_PROBE"), value.is_some());
+                            fb.set(&format!("{name}_PROBE_VALUE"), value.unwrap_or(false));
+                        }
+                    }
+                }
                 let outcome = filter.scan(t, &mut io, mode);
                 fb.call(t);
                 let mut check = |what: &str, rust: bool, st: Option<bool>| {
@@ -653,6 +672,20 @@ fn random_runs(
                     check(&c.name, rust, fb.get(&format!("{}_VIOLATED", c.name)));
                 }
                 check("FALLBACK", outcome.fallback, fb.get("FALLBACK"));
+                for (_, name) in actuators.iter().filter(|_| probing) {
+                    let rust = outcome
+                        .requests
+                        .iter()
+                        .any(|(a, r)| a == name && matches!(r, Request::Refused(_)));
+                    stats.probes_refused += u64::from(rust);
+                    let bit = format!("{name}_PROBE_REFUSED");
+                    check(&bit, rust, fb.get(&bit));
+                }
+                stats.probes_applied += outcome
+                    .requests
+                    .iter()
+                    .filter(|(_, r)| *r == Request::Applied)
+                    .count() as u64;
                 for (p, part) in plant.parts.iter().enumerate() {
                     let bit = format!("FALLBACK_{}", part.name);
                     let st = if fb.has_output(&bit) {
@@ -699,6 +732,10 @@ fn bench_plant_under_random_inputs_matches_scan_by_scan() {
     let stats = random_runs("bench", &plant, Some(&model), &couplings, 20_000);
     assert!(
         stats.fallbacks > 1000 && stats.part_fallbacks > 1000,
+        "{stats:?}"
+    );
+    assert!(
+        stats.probes_applied > 1000 && stats.probes_refused > 1000,
         "{stats:?}"
     );
     // Every interval that can hold did, under both parts' qualified names

@@ -25,6 +25,7 @@ mod learn_cli;
 mod monitor_can;
 mod monitor_cli;
 mod netfault;
+mod probing;
 mod report_browser;
 mod report_cli;
 mod shipped_datasets;

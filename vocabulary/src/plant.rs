@@ -271,6 +271,20 @@ impl Plant {
         Checker { text, path }.build(raw)
     }
 
+    /// The same plant with every fault its parts can have (what a plant file
+    /// without `[faults]` gets): each sensor stuck at 0 or 1 or pulsing, each
+    /// actuator stuck, each element blocked at or between its sensors, in the
+    /// default partitions. The listed faults and partitions are replaced.
+    pub fn with_every_fault(&self) -> Plant {
+        let faults = default_faults(&self.parts, &self.signals);
+        let partitions = default_partitions(&faults, &self.parts, &self.signals);
+        Plant {
+            faults,
+            partitions,
+            ..self.clone()
+        }
+    }
+
     /// The part with this name.
     pub fn part(&self, name: &str) -> Option<&Part> {
         self.parts.iter().find(|p| p.name == name)

@@ -102,6 +102,39 @@ fn a_flagged_element_sends_its_part_to_the_fallback_only() {
     assert!(get(&p, &v, "A5"));
 }
 
+/// With every fault the parts can have: a flagged sensor whose edges follow
+/// the workpieces (no learned estimate) stops its part; C4 and C5, which have
+/// estimates, switch to them instead and stop nothing.
+#[test]
+fn a_flagged_sensor_with_no_estimate_stops_its_part() {
+    let p = plant().with_every_fault();
+    let m = model();
+    let mut f = Filter::new(&p, Some(&m), Coupling::Flags).expect("filter");
+    let parts = f.fallback_parts();
+    let stopped_by = |flag: &str| -> Vec<String> {
+        parts
+            .iter()
+            .filter(|(flags, _)| flags.iter().any(|x| x == flag))
+            .flat_map(|(_, outputs)| outputs.clone())
+            .collect()
+    };
+    assert_eq!(stopped_by("def_C0"), ["A0"]);
+    assert_eq!(stopped_by("def_C6"), ["A2", "A3"]);
+    assert_eq!(stopped_by("def_C9"), ["A6"]);
+    assert_eq!(stopped_by("def_P"), ["A4"]);
+    assert_eq!(stopped_by("def_A1"), ["A1"]);
+    assert!(stopped_by("def_C4").is_empty());
+    assert!(stopped_by("def_C5").is_empty());
+    // The feed stops; the other parts keep the control's orders.
+    assert!(f.set("def_C0", true));
+    let mut v = io(&p, &["C4", "A0", "A1", "A5", "A6"]);
+    let out = f.scan(0, &mut v, Mode::Filter);
+    assert!(out.violated.is_empty(), "{:?}", out.violated);
+    assert_eq!(out.parts_in_fallback.len(), 1);
+    assert!(!get(&p, &v, "A0"));
+    assert!(get(&p, &v, "A1") && get(&p, &v, "A5") && get(&p, &v, "A6"));
+}
+
 #[test]
 fn intervals_follow_the_time_since_the_order() {
     let p = plant();

@@ -1,0 +1,209 @@
+//! Active diagnosis: a probing move of a part whose verdict stays ambiguous
+//! while its control waits.
+//!
+//! A move is a candidate probe when it passes two checks, both made on copies
+//! of what runs in the loop, so that nothing is written per plant:
+//!
+//! 1. **Safe under every remaining candidate.** The filter, with the
+//!    suspected partitions' sensors read conservatively (the union of reading
+//!    and estimate, see `filter_coupling::rewrite`), accepts the move in the
+//!    next scan: no safety constraint forbids it. A constraint that forbids it
+//!    under one candidate forbids it under the union.
+//! 2. **It separates candidates.** The part's diagnoser, copied, is given the
+//!    move and then silence: deadline after deadline, up to [`HORIZON`]. The
+//!    move separates if silence rules out some candidates but not all: then
+//!    either the edges the ruled-out candidates predict come, or they do not,
+//!    and the real diagnoser tells which.
+//!
+//! The move is a change of one of the part's outputs from the order the
+//! control keeps. While it runs, the filter checks it again in every scan
+//! ([`Filter::request`]) and keeps the control's order where a constraint
+//! forbids it. It ends when the part's verdict changes, or when silence has
+//! had its time.
+
+use diagnoser::diagnosis::{PlantDiagnoser, Verdict, VerdictKind};
+use diagnoser::plant::Part;
+use diagnoser::{Event, MS, Plant, SECOND, SignalId, Time};
+use filter_coupling::filter::{Filter, Mode, Request};
+
+/// How long an ambiguous part's verdict and orders must stay unchanged before
+/// a probe: the control is waiting.
+pub const PATIENCE: Time = 2 * SECOND;
+/// How far the diagnoser's copy is run in silence after a move.
+pub const HORIZON: Time = 60 * SECOND;
+
+/// A probing move chosen for a part.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Probe {
+    /// The part.
+    pub part: String,
+    /// The output moved.
+    pub actuator: String,
+    /// The value it is moved to.
+    pub value: bool,
+    /// The part's candidates when the move began.
+    pub candidates: Vec<String>,
+    /// Those silence would leave.
+    pub if_silent: Vec<String>,
+    /// When the move began.
+    pub from: Time,
+    /// When silence would have told.
+    pub until: Time,
+}
+
+impl Probe {
+    /// `released A4 to tell F3 from F11`.
+    pub fn describe(&self) -> String {
+        let verb = if self.value { "set" } else { "released" };
+        format!(
+            "{verb} {} to tell {} apart",
+            self.actuator,
+            self.candidates.join(", ")
+        )
+    }
+
+    /// The reason of the verdict the probe led to: `released A4 to tell F3,
+    /// F11 apart: RE(C4) …, so F3`.
+    pub fn outcome(&self, verdict: &Verdict) -> String {
+        let after = (verdict.t - self.from) as f64 / SECOND as f64;
+        format!(
+            "{} ({after:.1} s after the move: {}), so {}",
+            self.describe(),
+            verdict.reason,
+            verdict.labels.join(", ")
+        )
+    }
+}
+
+/// Searches `part`'s outputs for a probe at `t`, the scan whose orders and
+/// sensors `io` holds. `Err` gives, per output, why it is no probe.
+pub fn search(
+    plant: &Plant,
+    part: &Part,
+    filter: &Filter,
+    diagnoser: &PlantDiagnoser,
+    verdict: &Verdict,
+    t: Time,
+    io: &[bool],
+) -> Result<Probe, Vec<String>> {
+    let next = t + plant.scan_period;
+    let mut refused = Vec::new();
+    for &a in &part.actuators {
+        let name = plant.signals.name(a);
+        let value = !io[a.index()];
+        if let Err(why) = accepted(plant, filter, name, value, next, io) {
+            refused.push(format!("{name} = {}: {why}", u8::from(value)));
+            continue;
+        }
+        match separation(diagnoser, &part.name, &verdict.labels, a, value, next) {
+            Some((if_silent, until)) => {
+                return Ok(Probe {
+                    part: part.name.clone(),
+                    actuator: name.to_string(),
+                    value,
+                    candidates: verdict.labels.clone(),
+                    if_silent,
+                    from: next,
+                    until,
+                });
+            }
+            None => refused.push(format!(
+                "{name} = {}: no candidate is ruled out by silence after it",
+                u8::from(value)
+            )),
+        }
+    }
+    Err(refused)
+}
+
+/// Whether the filter would take `actuator` at `value` in the next scan; if
+/// not, the constraints that forbid it, as the plant file writes them.
+fn accepted(
+    plant: &Plant,
+    filter: &Filter,
+    actuator: &str,
+    value: bool,
+    t: Time,
+    io: &[bool],
+) -> Result<(), String> {
+    let mut f = filter.clone();
+    f.request(actuator, Some(value));
+    let mut next = io.to_vec();
+    let outcome = f.scan(t, &mut next, Mode::Control);
+    match outcome
+        .requests
+        .into_iter()
+        .find(|(a, _)| a == actuator)
+        .map(|(_, r)| r)
+    {
+        Some(Request::Refused(violated)) => {
+            let names: Vec<String> = violated
+                .iter()
+                .map(|v| {
+                    let written = plant.constraints.iter().find(|c| c.name == v.constraint);
+                    written.map_or(v.constraint.clone(), |c| format!("{} ({})", c.name, c.expr))
+                })
+                .collect();
+            Err(format!("forbidden by {}", names.join(" and ")))
+        }
+        Some(Request::Applied) => Ok(()),
+        None => Err("not an output of the filter".into()),
+    }
+}
+
+/// The candidates silence leaves after the move, and when, if some but not all
+/// are ruled out within [`HORIZON`].
+fn separation(
+    diagnoser: &PlantDiagnoser,
+    part: &str,
+    candidates: &[String],
+    actuator: SignalId,
+    value: bool,
+    t: Time,
+) -> Option<(Vec<String>, Time)> {
+    let mut d = diagnoser.clone();
+    let mut labels: Option<Vec<String>> = None;
+    let event = Event {
+        t,
+        signal: actuator,
+        value,
+    };
+    d.push(event, &mut |v: Verdict| keep(&mut labels, part, v));
+    d.advance_to(t, &mut |v: Verdict| keep(&mut labels, part, v));
+    let mut now = t;
+    loop {
+        if let Some(l) = labels.take() {
+            if !l.iter().all(|x| candidates.contains(x)) {
+                // An unknown or a new candidate: silence tells nothing useful.
+                return None;
+            }
+            if !l.is_empty() && l.len() < candidates.len() {
+                return Some((l, now));
+            }
+        }
+        let deadline = d.next_deadline()?;
+        if deadline > t + HORIZON {
+            return None;
+        }
+        now = deadline.max(now + MS);
+        d.advance_to(now, &mut |v: Verdict| keep(&mut labels, part, v));
+    }
+}
+
+/// Keeps `part`'s latest labels.
+fn keep(labels: &mut Option<Vec<String>>, part: &str, v: Verdict) {
+    if v.part == part {
+        *labels = Some(v.labels);
+    }
+}
+
+/// Whether `v` is a verdict a probe can act on: ambiguous between modelled
+/// faults.
+pub fn worth_probing(v: &Verdict) -> bool {
+    v.verdict == VerdictKind::Ambiguous
+        && v.labels.len() > 1
+        && !v
+            .labels
+            .iter()
+            .any(|l| l == diagnoser::diagnosis::UNKNOWN_LABEL)
+}
