@@ -35,11 +35,12 @@ fn serial() -> MutexGuard<'static, ()> {
 /// Runs of a real-time test made at most, when the PLC keeps falling behind.
 const ATTEMPTS: usize = 5;
 
-/// A real-time run is evidence only if the PLC served its plant on time: on a
-/// loaded machine the replay or the virtual PLC falls behind, and its edges
-/// then come late for any observer. `run` returns how far behind it fell
-/// (`Err`, in the plant's milliseconds) when that spoilt the run; such a run
-/// is made again, and `ATTEMPTS` spoilt runs fail the test.
+/// A real-time run that fails is evidence only if the PLC served its plant on
+/// time: on a loaded machine the replay or the virtual PLC falls behind, and
+/// its edges then come late for any observer. `run` returns how far behind it
+/// fell (`Err`, in the plant's milliseconds) when a failure came with such
+/// lateness ([`excused_if_late`]); such a run is made again, and `ATTEMPTS`
+/// of them fail the test.
 fn on_time(what: &str, mut run: impl FnMut() -> Result<(), f64>) {
     for attempt in 1..=ATTEMPTS {
         match run() {
@@ -223,11 +224,8 @@ fn diagnose_and_flag_an_independent_server() -> Result<(), f64> {
     // learned window); the turntable's verdict is what is checked.
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(15));
     let Some(certain) = certain else {
-        let late = python_most_late_ms(&mut plc);
-        if late > PYTHON_LATE_MS {
-            return Err(late);
-        }
-        panic!("no certain verdict: {:?}", mon.seen);
+        let failure = Some(format!("no certain verdict: {:?}", mon.seen));
+        return excused_if_late(failure, || python_most_late_ms(&mut plc), PYTHON_LATE_MS);
     };
     assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
     assert!(certain.contains("\"verdict\":\"certain\""), "{certain}");
@@ -281,17 +279,12 @@ fn restart_the_plc() -> Result<(), f64> {
         Duration::from_secs(15),
     );
     if written.is_none() {
-        let late = python_most_late_ms(&mut first);
-        if late > PYTHON_LATE_MS {
-            return Err(late);
-        }
+        let failure = Some(format!(
+            "def_C4 not written: {:?} / {:?}",
+            first.seen, mon.seen
+        ));
+        return excused_if_late(failure, || python_most_late_ms(&mut first), PYTHON_LATE_MS);
     }
-    assert!(
-        written.is_some(),
-        "def_C4 not written: {:?} / {:?}",
-        first.seen,
-        mon.seen
-    );
     drop(first);
     std::thread::sleep(Duration::from_millis(300));
     let mut second = python_plc(port, 610_000, 640_000, 2.0);
@@ -354,11 +347,8 @@ fn flag_a_virtual_plc_which_goes_on() -> Result<(), f64> {
     let mut mon = monitor_at_4x(run_plant, model, port, "33s");
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(30));
     let Some(certain) = certain else {
-        let late = most_late_ms(&mut plc);
-        if late > VIRTUAL_LATE_MS {
-            return Err(late);
-        }
-        panic!("F2 never certain: {:?}", mon.seen);
+        let failure = Some(format!("F2 never certain: {:?}", mon.seen));
+        return excused_if_late(failure, || most_late_ms(&mut plc), VIRTUAL_LATE_MS);
     };
     assert!(certain.contains("\"part\":\"turntable\""), "{certain}");
     assert!(certain.contains("def_C4"), "{certain}");
@@ -580,21 +570,39 @@ fn slow_network_run(
     let status = mon.child.wait().expect("the monitor ends");
     let _ = mon.wait_for("never printed", Duration::from_millis(200));
     let err = mon.stderr();
-    let lag = most_late_ms(&mut plc);
-    if lag > VIRTUAL_LATE_MS {
-        return Err(lag);
-    }
     assert!(status.success(), "{err}");
     let stats = proxy.stats();
     assert!(stats.delayed > 0, "{stats:?}");
-    assert!(
-        mon.seen.is_empty(),
-        "{share}: verdicts on a healthy plant: {:?}\n{err}",
-        mon.seen
-    );
-    assert!(err.contains("flags: none"), "{share}: {err}");
-    assert!(!err.contains("flags written to the PLC: def_"), "{err}");
-    Ok(())
+    let failure = if !mon.seen.is_empty() {
+        Some(format!(
+            "{share}: verdicts on a healthy plant: {:?}\n{err}",
+            mon.seen
+        ))
+    } else if !err.contains("flags: none") || err.contains("flags written to the PLC: def_") {
+        Some(format!("{share}: flags on a healthy plant: {err}"))
+    } else {
+        None
+    };
+    excused_if_late(failure, || most_late_ms(&mut plc), VIRTUAL_LATE_MS)
+}
+
+/// A run's `failure`, if any: excused (`Err`, the run is made again) when
+/// the PLC fell more than `limit` ms behind real time, which `late` reads.
+/// A run that passes is never made again, whatever its lateness.
+fn excused_if_late(
+    failure: Option<String>,
+    late: impl FnOnce() -> f64,
+    limit: f64,
+) -> Result<(), f64> {
+    let Some(failure) = failure else {
+        return Ok(());
+    };
+    let late = late();
+    if late > limit {
+        eprintln!("{failure}");
+        return Err(late);
+    }
+    panic!("{failure} (the PLC kept time: {late:.1} ms late at worst)");
 }
 
 /// Stops the virtual PLC and reads, from its summary, how far behind real
@@ -638,11 +646,8 @@ fn flag_a_stuck_sensor_through_a_slow_network() -> Result<(), f64> {
     let certain = mon.wait_for("\"labels\":[\"F2\"]", Duration::from_secs(40));
     let seen_at = std::time::SystemTime::now();
     let Some(certain) = certain else {
-        let late = most_late_ms(&mut plc);
-        if late > VIRTUAL_LATE_MS {
-            return Err(late);
-        }
-        panic!("F2 never certain: {:?}", mon.seen);
+        let failure = Some(format!("F2 never certain: {:?}", mon.seen));
+        return excused_if_late(failure, || most_late_ms(&mut plc), VIRTUAL_LATE_MS);
     };
     assert!(certain.contains("def_C4"), "{certain}");
     // The verdict's time is on the monitor's live clock: the wall clock at its
@@ -663,19 +668,20 @@ fn flag_a_stuck_sensor_through_a_slow_network() -> Result<(), f64> {
     eprintln!("F2 came {waited:.3} s after its evidence");
     let status = mon.child.wait().expect("the monitor ends");
     let err = mon.stderr();
-    let late = most_late_ms(&mut plc);
-    if late > VIRTUAL_LATE_MS {
-        return Err(late);
-    }
-    assert!(waited < 2.0, "F2 came {waited:.3} s after its evidence");
     assert!(status.success(), "{err}");
+    let failure = if waited >= 2.0 {
+        Some(format!("F2 came {waited:.3} s after its evidence"))
+    } else if mon.seen.iter().any(|l| l.contains("unknown")) {
+        Some(format!("unknown on a stuck sensor: {:?}", mon.seen))
+    } else {
+        None
+    };
+    let verdict = excused_if_late(failure, || most_late_ms(&mut plc), VIRTUAL_LATE_MS);
+    let _ = plc.kill();
+    let _ = plc.wait();
+    verdict?;
     assert!(err.contains("flags written to the PLC: def_C4"), "{err}");
     assert!(err.contains("def_C4 raised at"), "{err}");
-    assert!(
-        !mon.seen.iter().any(|l| l.contains("unknown")),
-        "{:?}",
-        mon.seen
-    );
     Ok(())
 }
 
