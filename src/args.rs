@@ -85,10 +85,11 @@ impl ReplayArgs {
 pub enum CouplingArg {
     /// The constraints read the sensors as they are.
     None,
-    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
-    /// element partition's part to its fallback.
+    /// `def_<partition>` switches a sensor to its estimate, and sends to its
+    /// fallback the part of an actuator, element, or sensor with no estimate.
     Def,
-    /// As `def`, and `suspect_<partition>` also switches a sensor to its estimate.
+    /// As `def`, and on `suspect_<partition>` a sensor reads the union of its
+    /// reading and its estimate.
     #[value(name = "def+suspect")]
     DefSuspect,
 }

@@ -21,7 +21,6 @@ use std::path::Path;
 use clap::{Args, ValueEnum};
 use datasets::inject::Injection;
 use datasets::sorting::plant;
-use diagnoser::fault::FaultTarget;
 use diagnoser::model::Model;
 use diagnoser::{Failure, FaultTemplate, MS, Plant, SECOND, Time};
 use filter_coupling::filter::Coupling;
@@ -104,11 +103,10 @@ struct Scenario {
     declared: &'static str,
 }
 
-/// One closed-loop run: `scenario` and `mode` are `None` for a seed's
-/// fault-free reference.
+/// One closed-loop run: of a scenario in a mode (indices), or `None` for a
+/// seed's fault-free reference.
 struct Job {
-    scenario: Option<usize>,
-    mode: Option<usize>,
+    scenario_mode: Option<(usize, usize)>,
     seed: usize,
     run: LoopRun,
 }
@@ -173,8 +171,7 @@ fn scenarios(plant: &Plant, model: &Model) -> Vec<Scenario> {
         .faults
         .iter()
         .map(|f| {
-            let sensor = f.template.target() == FaultTarget::Sensor;
-            let declared = if sensor && estimated(f.template.arguments()[0]) {
+            let declared = if f.template.sensor().is_some_and(estimated) {
                 "estimate"
             } else {
                 "part stopped"
@@ -200,11 +197,10 @@ fn jobs(plant: &Plant, scenarios: &[Scenario], seeds: usize) -> Result<Vec<Job>,
             duration: DURATION,
             fault,
             from,
-            probe: false,
+            probe: coupling == Coupling::FlagsAndSuspects,
         };
         jobs.push(Job {
-            scenario: None,
-            mode: None,
+            scenario_mode: None,
             seed,
             run: run(None, Coupling::None, 0),
         });
@@ -216,13 +212,10 @@ fn jobs(plant: &Plant, scenarios: &[Scenario], seeds: usize) -> Result<Vec<Job>,
             };
             let fault = Injection::resolve(&spec, plant)?;
             for (m, &(_, coupling)) in MODES.iter().enumerate() {
-                let mut run = run(Some(fault.clone()), coupling, onset);
-                run.probe = coupling == Coupling::FlagsAndSuspects;
                 jobs.push(Job {
-                    scenario: Some(i),
-                    mode: Some(m),
+                    scenario_mode: Some((i, m)),
                     seed,
-                    run,
+                    run: run(Some(fault.clone()), coupling, onset),
                 });
             }
         }
@@ -293,7 +286,7 @@ fn rows(scenarios: &[Scenario], jobs: &[Job], outcomes: &[LoopOutcome]) -> Vec<R
     let nominal: Vec<&LoopOutcome> = jobs
         .iter()
         .zip(outcomes)
-        .filter(|(j, _)| j.scenario.is_none())
+        .filter(|(j, _)| j.scenario_mode.is_none())
         .map(|(_, o)| o)
         .collect();
     let mut rows = Vec::new();
@@ -302,7 +295,7 @@ fn rows(scenarios: &[Scenario], jobs: &[Job], outcomes: &[LoopOutcome]) -> Vec<R
             let runs: Vec<Measured> = jobs
                 .iter()
                 .zip(outcomes)
-                .filter(|(j, _)| j.scenario == Some(i) && j.mode == Some(m))
+                .filter(|(j, _)| j.scenario_mode == Some((i, m)))
                 .map(|(j, o)| measured(j, o, nominal[j.seed]))
                 .collect();
             rows.push(row(s, mode, &runs));

@@ -73,8 +73,8 @@ struct StArgs {
     /// How the flags are used [default: def, or def+suspect with --suspects].
     #[arg(long, value_enum)]
     coupling: Option<CouplingArg>,
-    /// Also switch to the estimate on `suspect_<partition>` (same as
-    /// `--coupling def+suspect`).
+    /// Also read a sensor as the union of its reading and its estimate on
+    /// `suspect_<partition>` (same as `--coupling def+suspect`).
     #[arg(long)]
     suspects: bool,
     /// Compute the orders by safe control by constraints (seed 001 §4) instead
@@ -99,7 +99,8 @@ struct RewriteArgs {
     /// with an estimate).
     #[arg(long, value_delimiter = ',')]
     flags: Vec<String>,
-    /// Also switch to the estimate on `suspect_<partition>`.
+    /// Also read a sensor as the union of its reading and its estimate on
+    /// `suspect_<partition>`.
     #[arg(long)]
     suspects: bool,
 }

@@ -48,11 +48,11 @@ pub enum Coupling {
     /// The constraints read the sensors as they are; flags are ignored.
     #[default]
     None,
-    /// `def_<partition>` switches a sensor to its estimate, and an actuator or
-    /// element partition's part to the fallback.
+    /// `def_<partition>` switches a sensor to its estimate, and sends to the
+    /// fallback the part of an actuator, element, or sensor with no estimate.
     Flags,
-    /// As [`Coupling::Flags`], and `suspect_<partition>` also switches a sensor
-    /// to its estimate.
+    /// As [`Coupling::Flags`], and on `suspect_<partition>` a sensor reads the
+    /// union of its reading and its estimate (safe under every candidate).
     FlagsAndSuspects,
 }
 
@@ -98,7 +98,8 @@ pub struct ScanOutcome {
     pub violated: Vec<Violation>,
     /// Whether the whole plant was sent to the fallback.
     pub fallback: bool,
-    /// Parts sent to the fallback by a flagged actuator or element fault.
+    /// Parts sent to the fallback by a flagged fault that stops them (an
+    /// actuator or element fault, or a sensor fault with no estimate).
     pub parts_in_fallback: Vec<usize>,
     /// What became of each order asked for with [`Filter::request`]: the
     /// output and the outcome, in the order of the outputs.
@@ -260,13 +261,7 @@ pub fn sensor_partition(plant: &Plant, sensor: &str) -> String {
     plant
         .faults
         .iter()
-        .filter(|f| {
-            matches!(
-                &f.template,
-                FaultTemplate::Stuck0(s) | FaultTemplate::Stuck1(s)
-                | FaultTemplate::UnexpectedRise(s) | FaultTemplate::UnexpectedFall(s) if s == sensor
-            )
-        })
+        .filter(|f| f.template.sensor() == Some(sensor))
         .find_map(|f| plant.partition_of(&f.label))
         .map_or_else(|| sensor.to_string(), |p| p.name.clone())
 }
@@ -363,14 +358,10 @@ fn estimates_and_clocks(
 fn unestimated_sensors(plant: &Plant, learned: &[Estimate]) -> Vec<Estimate> {
     let mut out: Vec<Estimate> = Vec::new();
     for f in &plant.faults {
-        let (FaultTemplate::Stuck0(s)
-        | FaultTemplate::Stuck1(s)
-        | FaultTemplate::UnexpectedRise(s)
-        | FaultTemplate::UnexpectedFall(s)) = &f.template
-        else {
+        let Some(s) = f.template.sensor() else {
             continue;
         };
-        let known = |e: &Estimate| &e.sensor == s;
+        let known = |e: &Estimate| e.sensor == s;
         if plant.partition_of(&f.label).is_none()
             || learned.iter().any(known)
             || out.iter().any(known)

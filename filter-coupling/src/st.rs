@@ -1520,7 +1520,7 @@ impl<'a> Gen<'a> {
         for (bit, part) in &facts.part_bits {
             let _ = writeln!(
                 out,
-                "    {bit} : BOOL; (* part {} is in its fallback: an actuator or element fault is flagged *)",
+                "    {bit} : BOOL; (* part {} is in its fallback: a fault that stops it is flagged *)",
                 comment_text(part)
             );
         }
@@ -1789,7 +1789,7 @@ expr = "C6 & !A4"
             "    def_P : BOOL; (* a fault of partition P is certain (diagnosers) *)",
             "    A4 : BOOL; (* rotate the turntable *)",
             "    CSs14_VIOLATED : BOOL; (* CSs14 = !C4 & RE(A4) was 1 on the orders *)",
-            "    FALLBACK_turntable : BOOL; (* part turntable is in its fallback: an actuator or element fault is flagged *)",
+            "    FALLBACK_turntable : BOOL; (* part turntable is in its fallback: a fault that stops it is flagged *)",
             "    _2P : BOOL; (* observer 2P *)",
             "    turntable_CLK : TON; (* time since the scan that wrote A4's order, minus one scan *)",
             "    I2 : BOOL; (* I2 [20 ms, 140.000001 ms[ since A4 = 1 *)",

@@ -269,10 +269,11 @@ impl Probing {
     /// left unanswered, or looks for one where a part waits, ambiguous.
     fn scan(&mut self, t: Time, io: &[bool], filter: &mut Filter, diagnoser: &PlantDiagnoser) {
         for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
-            let orders: Vec<bool> = part.actuators.iter().map(|a| io[a.index()]).collect();
-            if orders != w.orders {
+            let now = part.actuators.iter().map(|a| io[a.index()]);
+            if w.orders.len() != part.actuators.len() || !now.clone().eq(w.orders.iter().copied()) {
                 // The situation moved on: once it waits again, search again.
-                w.orders = orders;
+                w.orders.clear();
+                w.orders.extend(now);
                 w.orders_since = t;
                 w.searched = false;
             }
@@ -319,7 +320,6 @@ impl Probing {
 pub(crate) struct Watched {
     line: SortingLine,
     from: Time,
-    delivered_before: u64,
     last_progress: Time,
     halted: Time,
     last_t: Option<Time>,
@@ -332,7 +332,6 @@ impl Watched {
         Watched {
             line: SortingLine::new(SortingConfig::default()),
             from,
-            delivered_before: 0,
             last_progress: 0,
             halted: 0,
             last_t: None,
@@ -340,9 +339,10 @@ impl Watched {
         }
     }
 
-    /// Boxes delivered on both sides since `from`.
+    /// Boxes delivered on both sides after `from`.
     pub(crate) fn delivered(&self) -> u64 {
-        self.line.delivered() - self.delivered_before
+        let before = self.deliveries.partition_point(|&t| t <= self.from);
+        (self.deliveries.len() - before) as u64
     }
 }
 
@@ -359,10 +359,7 @@ impl Physics for Watched {
         for _ in before..self.line.delivered() {
             self.deliveries.push(t);
         }
-        if t <= self.from {
-            self.delivered_before = self.line.delivered();
-            self.last_progress = t;
-        } else if self.line.delivered() > before || !self.line.occupied() {
+        if t <= self.from || self.line.delivered() > before || !self.line.occupied() {
             self.last_progress = t;
         } else if let Some(last) = self.last_t
             && t - self.last_progress > HALT_AFTER
@@ -455,6 +452,10 @@ fn simulate(
     };
     let report = datasets::sim::run(&mut physics, &mut plc, &config, sink, |_| {})
         .map_err(|e| format!("simulation failed: {e}"))?;
+    let (probes, no_probe) = plc
+        .probing
+        .take()
+        .map_or_else(Default::default, |p| (p.probes, p.no_probe));
     Ok(LoopOutcome {
         delivered: physics.delivered(),
         damage: report
@@ -467,10 +468,7 @@ fn simulate(
         fallback_scans: plc.fallback_scans,
         flags: plc.board.raised().to_vec(),
         deliveries: physics.deliveries,
-        probes: plc
-            .probing
-            .as_ref()
-            .map_or_else(Vec::new, |p| p.probes.clone()),
-        no_probe: plc.probing.map_or_else(Vec::new, |p| p.no_probe),
+        probes,
+        no_probe,
     })
 }

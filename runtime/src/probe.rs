@@ -43,8 +43,6 @@ pub struct Probe {
     pub value: bool,
     /// The part's candidates when the move began.
     pub candidates: Vec<String>,
-    /// Those silence would leave.
-    pub if_silent: Vec<String>,
     /// When the move began.
     pub from: Time,
     /// When silence would have told.
@@ -96,13 +94,12 @@ pub fn search(
             continue;
         }
         match separation(diagnoser, &part.name, &verdict.labels, a, value, next) {
-            Some((if_silent, until)) => {
+            Some(until) => {
                 return Ok(Probe {
                     part: part.name.clone(),
                     actuator: name.to_string(),
                     value,
                     candidates: verdict.labels.clone(),
-                    if_silent,
                     from: next,
                     until,
                 });
@@ -151,8 +148,8 @@ fn accepted(
     }
 }
 
-/// The candidates silence leaves after the move, and when, if some but not all
-/// are ruled out within [`HORIZON`].
+/// When silence after the move has ruled out some candidates but not all, if
+/// it does within [`HORIZON`].
 fn separation(
     diagnoser: &PlantDiagnoser,
     part: &str,
@@ -160,7 +157,7 @@ fn separation(
     actuator: SignalId,
     value: bool,
     t: Time,
-) -> Option<(Vec<String>, Time)> {
+) -> Option<Time> {
     let mut d = diagnoser.clone();
     let mut labels: Option<Vec<String>> = None;
     let event = Event {
@@ -178,7 +175,7 @@ fn separation(
                 return None;
             }
             if !l.is_empty() && l.len() < candidates.len() {
-                return Some((l, now));
+                return Some(now);
             }
         }
         let deadline = d.next_deadline()?;

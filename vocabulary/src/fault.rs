@@ -93,6 +93,14 @@ impl FaultTemplate {
         }
     }
 
+    /// The sensor a sensor fault is on; `None` for actuator and element faults.
+    pub fn sensor(&self) -> Option<&str> {
+        match self.target() {
+            FaultTarget::Sensor => self.signal(),
+            _ => None,
+        }
+    }
+
     /// The arguments in order, as written.
     pub fn arguments(&self) -> Vec<&str> {
         match self {
