@@ -15,7 +15,7 @@ use logs::LogStream;
 use rand_chacha::ChaCha8Rng;
 
 use crate::flags::FlagBoard;
-use crate::probe::{self, Probe};
+use crate::probe::{ProbeRecord, Prober};
 
 /// No delivery for this long while boxes wait counts as halted, beyond it.
 pub const HALT_AFTER: Time = 60 * diagnoser::SECOND;
@@ -62,17 +62,6 @@ pub struct LoopOutcome {
     pub no_probe: Vec<String>,
 }
 
-/// A probing move and what it told.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ProbeRecord {
-    /// When the move began.
-    pub t: Time,
-    /// The part.
-    pub part: String,
-    /// `released A4 to tell F3, F11 apart (2.9 s after the move: …), so F3`.
-    pub reason: String,
-}
-
 impl LoopOutcome {
     /// Boxes delivered from `from` on.
     pub fn delivered_from(&self, from: Time) -> u64 {
@@ -98,27 +87,7 @@ pub struct CoupledPlc {
     fallback_scans: u64,
     verdicts: Vec<Verdict>,
     /// Probing, when on: the plant and what it watches.
-    probing: Option<Probing>,
-}
-
-/// What the coupling watches to probe: per part, its last verdict, since when
-/// it and the part's orders are unchanged, and whether it was searched.
-#[derive(Clone)]
-struct Probing {
-    plant: Plant,
-    parts: Vec<PartWatch>,
-    active: Option<Probe>,
-    probes: Vec<ProbeRecord>,
-    no_probe: Vec<String>,
-}
-
-#[derive(Clone, Default)]
-struct PartWatch {
-    verdict: Option<Verdict>,
-    since: Time,
-    orders: Vec<bool>,
-    orders_since: Time,
-    searched: bool,
+    probing: Option<Prober>,
 }
 
 impl CoupledPlc {
@@ -143,13 +112,7 @@ impl CoupledPlc {
 
     /// Lets the coupling make probing moves on `plant`'s parts ([`crate::probe`]).
     pub fn with_probing(mut self, plant: &Plant) -> CoupledPlc {
-        self.probing = Some(Probing {
-            plant: plant.clone(),
-            parts: vec![PartWatch::default(); plant.parts.len()],
-            active: None,
-            probes: Vec::new(),
-            no_probe: Vec::new(),
-        });
+        self.probing = Some(Prober::new(plant));
         self
     }
 
@@ -235,83 +198,6 @@ impl Controller for CoupledPlc {
         }
         if let (Some(p), Some(d)) = (self.probing.as_mut(), self.diagnoser.as_ref()) {
             p.scan(t, io, &mut self.filter, d);
-        }
-    }
-}
-
-impl Probing {
-    /// A part's new verdict: it answers the probe under way if its labels
-    /// changed, and the part's wait starts again.
-    fn note_verdict(&mut self, v: &Verdict, filter: &mut Filter) {
-        let Some(i) = self.plant.parts.iter().position(|p| p.name == v.part) else {
-            return;
-        };
-        if let Some(probe) = &self.active
-            && probe.part == v.part
-            && v.t >= probe.from
-            && v.labels != probe.candidates
-        {
-            self.probes.push(ProbeRecord {
-                t: probe.from,
-                part: probe.part.clone(),
-                reason: probe.outcome(v),
-            });
-            filter.request(&probe.actuator, None);
-            self.active = None;
-        }
-        let w = &mut self.parts[i];
-        w.verdict = Some(v.clone());
-        w.since = v.t;
-        w.searched = false;
-    }
-
-    /// After a scan's orders and diagnosis: ends a probe that silence has
-    /// left unanswered, or looks for one where a part waits, ambiguous.
-    fn scan(&mut self, t: Time, io: &[bool], filter: &mut Filter, diagnoser: &PlantDiagnoser) {
-        for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
-            let now = part.actuators.iter().map(|a| io[a.index()]);
-            if w.orders.len() != part.actuators.len() || !now.clone().eq(w.orders.iter().copied()) {
-                // The situation moved on: once it waits again, search again.
-                w.orders.clear();
-                w.orders.extend(now);
-                w.orders_since = t;
-                w.searched = false;
-            }
-        }
-        if let Some(probe) = &self.active {
-            if t > probe.until + probe::PATIENCE {
-                self.probes.push(ProbeRecord {
-                    t: probe.from,
-                    part: probe.part.clone(),
-                    reason: format!("{}: no verdict change", probe.describe()),
-                });
-                filter.request(&probe.actuator, None);
-                self.active = None;
-            }
-            return;
-        }
-        for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
-            let Some(v) = &w.verdict else { continue };
-            let waiting = t >= w.since + probe::PATIENCE && t >= w.orders_since + probe::PATIENCE;
-            if w.searched || !waiting || !probe::worth_probing(v) {
-                continue;
-            }
-            w.searched = true;
-            match probe::search(&self.plant, part, filter, diagnoser, v, t, io) {
-                Ok(p) => {
-                    filter.request(&p.actuator, Some(p.value));
-                    self.active = Some(p);
-                    return;
-                }
-                Err(reasons) => {
-                    for r in reasons {
-                        let line = format!("{} ({}): {r}", part.name, v.labels.join(", "));
-                        if !self.no_probe.contains(&line) {
-                            self.no_probe.push(line);
-                        }
-                    }
-                }
-            }
         }
     }
 }
@@ -455,7 +341,7 @@ fn simulate(
     let (probes, no_probe) = plc
         .probing
         .take()
-        .map_or_else(Default::default, |p| (p.probes, p.no_probe));
+        .map_or_else(Default::default, Prober::into_findings);
     Ok(LoopOutcome {
         delivered: physics.delivered(),
         damage: report

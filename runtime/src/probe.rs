@@ -73,6 +73,151 @@ impl Probe {
     }
 }
 
+/// A probing move and what it told.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeRecord {
+    /// When the move began.
+    pub t: Time,
+    /// The part.
+    pub part: String,
+    /// `released A4 to tell F3, F11 apart (2.9 s after the move: …), so F3`.
+    pub reason: String,
+}
+
+/// Probing over a run: per part, its last verdict, since when it and the
+/// part's orders are unchanged, and whether it was searched; the probe under
+/// way, and what probing found.
+///
+/// The closed loop and the monitor both drive one: [`Prober::note_verdict`]
+/// for every verdict, [`Prober::scan`] after every scan's orders and
+/// diagnosis. It moves the plant only through [`Filter::request`], which the
+/// filter checks again in every scan.
+#[derive(Clone)]
+pub struct Prober {
+    plant: Plant,
+    parts: Vec<PartWatch>,
+    active: Option<Probe>,
+    probes: Vec<ProbeRecord>,
+    no_probe: Vec<String>,
+}
+
+#[derive(Clone, Default)]
+struct PartWatch {
+    verdict: Option<Verdict>,
+    since: Time,
+    orders: Vec<bool>,
+    orders_since: Time,
+    searched: bool,
+}
+
+impl Prober {
+    /// Probing on `plant`'s parts, nothing watched yet.
+    pub fn new(plant: &Plant) -> Prober {
+        Prober {
+            plant: plant.clone(),
+            parts: vec![PartWatch::default(); plant.parts.len()],
+            active: None,
+            probes: Vec::new(),
+            no_probe: Vec::new(),
+        }
+    }
+
+    /// The probe under way, if any.
+    pub fn active(&self) -> Option<&Probe> {
+        self.active.as_ref()
+    }
+
+    /// The probes made so far, each with what it told.
+    pub fn probes(&self) -> &[ProbeRecord] {
+        &self.probes
+    }
+
+    /// Why no probe was made for an ambiguous, waiting part, once per reason.
+    pub fn no_probe(&self) -> &[String] {
+        &self.no_probe
+    }
+
+    /// The probes made and the reasons for none, to keep after the run.
+    pub fn into_findings(self) -> (Vec<ProbeRecord>, Vec<String>) {
+        (self.probes, self.no_probe)
+    }
+
+    /// A part's new verdict: it answers the probe under way if its labels
+    /// changed, and the part's wait starts again.
+    pub fn note_verdict(&mut self, v: &Verdict, filter: &mut Filter) {
+        let Some(i) = self.plant.parts.iter().position(|p| p.name == v.part) else {
+            return;
+        };
+        if let Some(probe) = &self.active
+            && probe.part == v.part
+            && v.t >= probe.from
+            && v.labels != probe.candidates
+        {
+            self.probes.push(ProbeRecord {
+                t: probe.from,
+                part: probe.part.clone(),
+                reason: probe.outcome(v),
+            });
+            filter.request(&probe.actuator, None);
+            self.active = None;
+        }
+        let w = &mut self.parts[i];
+        w.verdict = Some(v.clone());
+        w.since = v.t;
+        w.searched = false;
+    }
+
+    /// After a scan's orders and diagnosis: ends a probe that silence has
+    /// left unanswered, or looks for one where a part waits, ambiguous.
+    pub fn scan(&mut self, t: Time, io: &[bool], filter: &mut Filter, diagnoser: &PlantDiagnoser) {
+        for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
+            let now = part.actuators.iter().map(|a| io[a.index()]);
+            if w.orders.len() != part.actuators.len() || !now.clone().eq(w.orders.iter().copied()) {
+                // The situation moved on: once it waits again, search again.
+                w.orders.clear();
+                w.orders.extend(now);
+                w.orders_since = t;
+                w.searched = false;
+            }
+        }
+        if let Some(probe) = &self.active {
+            if t > probe.until + PATIENCE {
+                self.probes.push(ProbeRecord {
+                    t: probe.from,
+                    part: probe.part.clone(),
+                    reason: format!("{}: no verdict change", probe.describe()),
+                });
+                filter.request(&probe.actuator, None);
+                self.active = None;
+            }
+            return;
+        }
+        for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
+            let Some(v) = &w.verdict else { continue };
+            let waiting = t >= w.since + PATIENCE && t >= w.orders_since + PATIENCE;
+            if w.searched || !waiting || !worth_probing(v) {
+                continue;
+            }
+            w.searched = true;
+            match search(&self.plant, part, filter, diagnoser, v, t, io) {
+                Ok(p) => {
+                    filter.request(&p.actuator, Some(p.value));
+                    self.active = Some(p);
+                    return;
+                }
+                Err(reasons) => {
+                    for r in reasons {
+                        let line = format!("{} ({}): {r}", part.name, v.labels.join(", "));
+                        if !self.no_probe.contains(&line) {
+                            self.no_probe.push(line);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Searches `part`'s outputs for a probe at `t`, the scan whose orders and
 /// sensors `io` holds. `Err` gives, per output, why it is no probe.
 pub fn search(
