@@ -267,6 +267,11 @@ impl CylinderRig {
         rig
     }
 
+    /// Objects pushed from one corner to the next so far.
+    pub fn moves(&self) -> u64 {
+        self.moves
+    }
+
     /// Replaces the objects by one at each of `corners` (numbered 1 to 4, each at
     /// most once), for tests and other scenarios.
     pub fn with_objects(mut self, corners: &[usize]) -> Result<CylinderRig, String> {
@@ -602,6 +607,23 @@ impl ConstraintControl {
         self.steps.map(|s| s == Step::Extend)
     }
 
+    /// One scan of the four GRAFCETs on the sensors of `io` (at most one
+    /// transition each); the functional requirements `g1k` that follow, the
+    /// plant file's variables X1, X11, X21, X31 in order.
+    pub fn evolve(&mut self, io: &[bool]) -> [bool; CYLINDERS] {
+        let ids = self.ids;
+        for (k, step) in self.steps.iter_mut().enumerate() {
+            let retracted = io[ids.retracted[k]];
+            *step = match *step {
+                Step::Idle if io[ids.present[k]] && retracted => Step::Extend,
+                Step::Extend if io[ids.extended[k]] => Step::Retract,
+                Step::Retract if retracted => Step::Idle,
+                s => s,
+            };
+        }
+        self.requested()
+    }
+
     /// Applies the combined constraints to the intermediate orders `s` (figure 3).
     pub fn combine(&self, mut s: [bool; CYLINDERS]) -> [bool; CYLINDERS] {
         let combined = &self.ids.combined;
@@ -627,17 +649,7 @@ impl Controller for ConstraintControl {
         let present = ids.present.map(|i| io[i]);
         // The actuator entries still hold the previous scan's orders: Qk*.
         let before = ids.extend.map(|i| io[i]);
-
-        // GRAFCET evolution: at most one transition per GRAFCET and scan.
-        for (k, step) in self.steps.iter_mut().enumerate() {
-            *step = match *step {
-                Step::Idle if present[k] && retracted[k] => Step::Extend,
-                Step::Extend if extended[k] => Step::Retract,
-                Step::Retract if retracted[k] => Step::Idle,
-                s => s,
-            };
-        }
-        let g1 = self.requested();
+        let g1 = self.evolve(io);
 
         let mut s = [false; CYLINDERS];
         for (k, out) in s.iter_mut().enumerate() {

@@ -248,12 +248,34 @@ pub struct Filter {
     requested: Vec<Option<bool>>,
     /// Scratch: the orders being computed.
     orders: Vec<bool>,
+    /// Per sensor slot, how a functional program reads it: as the functional
+    /// constraints do (a failed sensor reads what its estimate makes certain).
+    certain: Vec<(usize, Op)>,
 }
 
 #[derive(Debug, Clone)]
 enum ObserverOp {
     SetReset { set: Op, reset: Op },
     Toggle(Op),
+}
+
+/// Per sensor, its slot and its reading where it must hold for certain: the
+/// rewriting of the functional constraints applied to the sensor alone.
+fn certain_sensors(
+    plant: &Plant,
+    index: &HashMap<String, usize>,
+    readings: &[Estimate],
+    options: RewriteOptions,
+) -> Result<Vec<(usize, Op)>, String> {
+    plant
+        .signals
+        .of_kind(SignalKind::Sensor)
+        .map(|s| {
+            let name = plant.signals.name(s);
+            let read = rewrite_certain(&Expr::Var(name.to_string()), readings, options);
+            Ok((index[name], compile(&read, index)?))
+        })
+        .collect()
 }
 
 /// The partition holding a sensor fault of `sensor`, else the sensor's name.
@@ -661,6 +683,12 @@ impl Filter {
             }
         })?;
         let (laws, combined) = laws_and_combined(plant, &safety, &functional, &actuators)?;
+        // Suspicion is the safety constraints' business: a program reading a
+        // suspected sensor as it is keeps the timing the diagnosers learned.
+        let declared_only = RewriteOptions {
+            use_suspects: false,
+        };
+        let certain = certain_sensors(plant, &index, &readings, declared_only)?;
         let observers = compile_observers(plant, &index)?;
         let part_fallback = part_fallbacks(plant, coupling, &index, &actuators, &estimates);
         let n = names.len();
@@ -692,6 +720,7 @@ impl Filter {
             started: false,
             requested: Vec::new(),
             orders: Vec::new(),
+            certain,
         })
     }
 
@@ -734,6 +763,23 @@ impl Filter {
     /// flag) in the last scan.
     pub fn value(&self, name: &str) -> Option<bool> {
         self.index.get(name).map(|&i| self.cur[i])
+    }
+
+    /// The sensors of `io` as a functional program beside the filter should
+    /// read them (a GRAFCET whose steps are the plant file's `variables`): as
+    /// the functional constraints do, a sensor declared failed (`def_`) reads
+    /// 1 only where its estimate makes 1 certain, so that a step waiting for
+    /// it moves on no sooner than the sensor would have risen. A sensor only
+    /// suspected reads as it is. The estimate's intervals are those of the
+    /// last scan; call it before [`Filter::scan`].
+    pub fn certain_sensors(&self, io: &mut [bool]) {
+        let mut cur = self.cur.clone();
+        for &(i, _) in &self.certain {
+            cur[i] = io[i];
+        }
+        for (i, op) in &self.certain {
+            io[*i] = op.eval(&cur, &self.prev);
+        }
     }
 
     /// Checks a recorded scan against the safety constraints: `io` holds the

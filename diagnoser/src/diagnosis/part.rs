@@ -264,6 +264,9 @@ pub struct PartDiagnoser {
     /// ([`Hypothesis::SOONER`]), and a withdrawn order's first edge is read on
     /// any clock (see [`Self::started_motion`]).
     reversals: bool,
+    /// Whether the control's reaction to a sensor edge may come later than
+    /// the edge, whatever the sensor (see [`Self::with_held_reactions`]).
+    held_reactions: bool,
 }
 
 /// Why a part's diagnoser cannot be built.
@@ -332,6 +335,7 @@ impl PartDiagnoser {
         Ok(PartDiagnoser {
             kin: kin_states(&vectors, undriven),
             reversals: true,
+            held_reactions: false,
             latest_lo,
             inputs,
             loose,
@@ -363,6 +367,18 @@ impl PartDiagnoser {
     pub fn without_reversals(&self) -> PartDiagnoser {
         PartDiagnoser {
             reversals: false,
+            ..self.clone()
+        }
+    }
+
+    /// The same diagnoser, where the control's reaction to any sensor edge
+    /// (an order the model learned in the edge's scan) may come later: the
+    /// orders pass a safety filter that may hold one back, as a coupled
+    /// filter does while a sensor is suspected. Commands are never blamed, so
+    /// an edge is not judged by the order that did not follow it at once.
+    pub fn with_held_reactions(&self) -> PartDiagnoser {
+        PartDiagnoser {
+            held_reactions: true,
             ..self.clone()
         }
     }
@@ -1078,7 +1094,8 @@ impl PartDiagnoser {
                     // arrives before the next machine is ready).
                     let physical = if !m.command {
                         m.changed
-                    } else if sensed & dec != 0
+                    } else if self.held_reactions
+                        || sensed & dec != 0
                         || sensed & !self.loose == 0
                         || self.reaction_shown(h, m, after)
                         || self.held_astray(h, after)

@@ -23,6 +23,12 @@ pub struct DiagnoserOptions {
     /// as normal is then also tried as two steps at the same time, the orders
     /// first or the sensors first.
     pub polled: bool,
+    /// The orders pass a safety filter coupled to the flags, which may hold
+    /// the control's reaction to a sensor edge back (the union reading of a
+    /// suspected sensor): a reaction the model learned in the edge's scan
+    /// may then come later, and the edge alone is judged on its own timing
+    /// ([`PartDiagnoser::with_held_reactions`]).
+    pub held_reactions: bool,
 }
 
 impl Default for DiagnoserOptions {
@@ -30,6 +36,7 @@ impl Default for DiagnoserOptions {
         DiagnoserOptions {
             glitch_max: 100 * crate::MS,
             polled: false,
+            held_reactions: false,
         }
     }
 }
@@ -146,13 +153,12 @@ impl PlantDiagnoser {
             let Some(pm) = model.parts.iter().find(|p| p.name == part.name) else {
                 return Err(format!("the model has no part '{}'", part.name));
             };
-            engines.push(Engine::new(PartDiagnoser::build(
-                plant,
-                part,
-                pm,
-                model.time_unit,
-                options.glitch_max,
-            )?));
+            let built = PartDiagnoser::build(plant, part, pm, model.time_unit, options.glitch_max)?;
+            engines.push(Engine::new(if options.held_reactions {
+                built.with_held_reactions()
+            } else {
+                built
+            }));
         }
         let mut routes = vec![Vec::new(); plant.signals.len()];
         for (p, e) in engines.iter().enumerate() {

@@ -202,3 +202,48 @@ fn observers_follow_their_set_and_reset_conditions() {
     scan(&mut f, 50 * MS, &["C5"]);
     assert_eq!(f.value("PC"), Some(false));
 }
+
+#[test]
+fn a_program_reads_a_declared_sensor_where_its_estimate_is_certain() {
+    let p = plant();
+    let m = model();
+    // C4 stuck at 0 while the turntable has been at loading for long (I10).
+    let read_c4 = |coupling, flag: Option<&str>| {
+        let mut f = Filter::new(&p, Some(&m), coupling).expect("filter");
+        if let Some(flag) = flag {
+            f.set(flag, true);
+        }
+        let mut v = io(&p, &["A5", "A6"]);
+        f.scan(0, &mut v, Mode::Filter);
+        let mut sensors = io(&p, &["A5", "A6"]);
+        f.certain_sensors(&mut sensors);
+        get(&p, &sensors, "C4")
+    };
+    assert!(
+        !read_c4(Coupling::None, Some("def_C4")),
+        "no coupling: as read"
+    );
+    assert!(!read_c4(Coupling::Flags, None), "no flag: as read");
+    assert!(
+        read_c4(Coupling::Flags, Some("def_C4")),
+        "declared: estimated"
+    );
+    assert!(
+        !read_c4(Coupling::FlagsAndSuspects, Some("suspect_C4")),
+        "suspected only: as read"
+    );
+
+    // C4 stuck at 1 one second into a rotation (A4 on since 1 s): the
+    // turntable has left loading, so C4 is not certainly 1.
+    let mut f = Filter::new(&p, Some(&m), Coupling::Flags).expect("filter");
+    f.set("def_C4", true);
+    // A recorded scan: the orders as written, whatever the constraints say.
+    f.violations(0, &io(&p, &["C4"]));
+    for t in [SECOND, 2 * SECOND] {
+        f.violations(t, &io(&p, &["C4", "A4"]));
+    }
+    let mut sensors = io(&p, &["C4", "A4"]);
+    f.certain_sensors(&mut sensors);
+    assert!(!get(&p, &sensors, "C4"), "mid-rotation, C4 is not certain");
+    assert!(get(&p, &sensors, "A4"), "orders are left as they are");
+}
