@@ -1,5 +1,5 @@
-//! `gardefou demo`: the whole chain on the embedded sorting line, with no
-//! argument, in closed loop.
+//! `gardefou demo`: the whole chain on an embedded plant (the sorting line
+//! with no argument, or `--plant cylinders`), in closed loop.
 //!
 //! One simulated hour of fault-free operation under safe control by
 //! constraints is learned. Then each fault (by default the plant file's list:
@@ -20,7 +20,6 @@ use std::path::Path;
 
 use clap::{Args, ValueEnum};
 use datasets::inject::Injection;
-use datasets::sorting::plant;
 use diagnoser::model::Model;
 use diagnoser::{Failure, FaultTemplate, MS, Plant, SECOND, Time};
 use filter_coupling::filter::Coupling;
@@ -47,6 +46,45 @@ pub struct DemoArgs {
     /// element blocked), which the diagnosers then also learn.
     #[arg(long, value_enum, default_value_t = FaultSet::Listed)]
     faults: FaultSet,
+    /// The plant run in closed loop.
+    #[arg(long, value_enum, default_value_t = PlantChoice::Sorting)]
+    plant: PlantChoice,
+}
+
+/// The embedded plants the closed loop can run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum PlantChoice {
+    /// The sorting line (seed 002's turntable and its conveyors).
+    Sorting,
+    /// The four-cylinder teaching rig (seed 001), under its GRAFCETs.
+    Cylinders,
+}
+
+impl PlantChoice {
+    fn plant(self) -> Plant {
+        match self {
+            PlantChoice::Sorting => datasets::sorting::plant(),
+            PlantChoice::Cylinders => datasets::cylinders::plant(),
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            PlantChoice::Sorting => "sorting",
+            PlantChoice::Cylinders => "cylinders",
+        }
+    }
+
+    /// The plant and its unit of work, as the preamble says them.
+    fn described(self) -> (&'static str, &'static str) {
+        match self {
+            PlantChoice::Sorting => ("sorting line", "boxes delivered"),
+            PlantChoice::Cylinders => (
+                "four-cylinder rig, under its GRAFCETs",
+                "objects moved from corner to corner",
+            ),
+        }
+    }
 }
 
 /// Which faults the experiment injects.
@@ -69,10 +107,12 @@ struct Row {
     declared: &'static str,
     mode: &'static str,
     runs: usize,
-    /// Mean over the runs of boxes delivered per hour from the onset.
-    boxes_per_hour: f64,
+    /// What a unit of work is: `boxes delivered`, `objects moved`.
+    work: &'static str,
+    /// Mean over the runs of work done per hour from the onset.
+    work_per_hour: f64,
     /// The same, for each run's seed without the fault, from the same onset.
-    nominal_boxes_per_hour: f64,
+    nominal_work_per_hour: f64,
     /// Throughput as a % of nominal, mean and worst run.
     throughput_mean_pct: f64,
     throughput_worst_pct: f64,
@@ -130,18 +170,20 @@ const DOCS_TABLE: &str = "docs/demo.md";
 
 /// Runs `gardefou demo`.
 pub fn run(args: DemoArgs) -> Result<(), Failure> {
-    let internal = |e: String| Failure::Io(format!("embedded sorting plant: {e}"));
+    let internal = |e: String| Failure::Io(format!("embedded {} plant: {e}", args.plant.name()));
     let plant = match args.faults {
-        FaultSet::Listed => plant(),
-        FaultSet::All => plant().with_every_fault(),
+        FaultSet::Listed => args.plant.plant(),
+        FaultSet::All => args.plant.plant().with_every_fault(),
     };
+    let rig = closed_loop::Rig::of(&plant).map_err(internal)?;
     let model = closed_loop::learned(&plant, LEARNING_SEED, 3600 * SECOND).map_err(internal)?;
-    let scenarios = scenarios(&plant, &model);
+    let (scenarios, not_run) = scenarios(&plant, &model, rig);
     let jobs = jobs(&plant, &scenarios, args.seeds as usize).map_err(internal)?;
     let outcomes = run_all(&plant, &model, &jobs).map_err(internal)?;
-    let rows = rows(&scenarios, &jobs, &outcomes);
+    let rows = rows(&scenarios, &jobs, &outcomes, rig.work());
 
-    let table = markdown(&rows);
+    let mut table = markdown(&rows);
+    table.push_str(&not_run_notes(&not_run));
     if args.write_docs {
         write_docs(&table, &args, model.learned_from.events)
             .map_err(|e| Failure::Io(format!("{DOCS_TABLE}: {e}")))?;
@@ -159,17 +201,26 @@ pub fn run(args: DemoArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-/// The plant's faults, with what the coupling does with each once declared.
-fn scenarios(plant: &Plant, model: &Model) -> Vec<Scenario> {
+/// The plant's faults the rig can simulate, with what the coupling does with
+/// each once declared; and those it cannot, with why.
+fn scenarios(plant: &Plant, model: &Model, rig: closed_loop::Rig) -> (Vec<Scenario>, Vec<String>) {
     let estimated = |s: &str| {
         model
             .parts
             .iter()
             .any(|p| p.sensor_estimates.iter().any(|e| e.sensor == s))
     };
-    plant
+    let mut not_run = Vec::new();
+    let scenarios = plant
         .faults
         .iter()
+        .filter(|f| match rig.simulates(&f.template) {
+            Ok(()) => true,
+            Err(why) => {
+                not_run.push(format!("{} {}: {why}", f.label, f.template));
+                false
+            }
+        })
         .map(|f| {
             let declared = if f.template.sensor().is_some_and(estimated) {
                 "estimate"
@@ -182,7 +233,33 @@ fn scenarios(plant: &Plant, model: &Model) -> Vec<Scenario> {
                 declared,
             }
         })
-        .collect()
+        .collect();
+    (scenarios, not_run)
+}
+
+/// Under the table: the faults the simulator cannot make, which the
+/// diagnosers still learned.
+fn not_run_notes(not_run: &[String]) -> String {
+    if not_run.is_empty() {
+        return String::new();
+    }
+    let lines: Vec<String> = not_run
+        .iter()
+        .map(|n| {
+            format!(
+                "- {n}
+"
+            )
+        })
+        .collect();
+    format!(
+        "
+Not run, as the simulator cannot make them (the diagnosers learned them all the \
+         same):
+
+{}",
+        lines.concat()
+    )
 }
 
 /// Per seed: its fault-free run, then every scenario in every mode, from an
@@ -271,7 +348,7 @@ fn progress_bar(runs: usize) -> ProgressBar {
 
 /// What one faulty run measured, against its seed's fault-free run.
 struct Measured {
-    boxes_per_hour: f64,
+    work_per_hour: f64,
     nominal_per_hour: f64,
     damage: usize,
     causes: Vec<&'static str>,
@@ -282,7 +359,12 @@ struct Measured {
 }
 
 /// One row per scenario and mode, over the seeds.
-fn rows(scenarios: &[Scenario], jobs: &[Job], outcomes: &[LoopOutcome]) -> Vec<Row> {
+fn rows(
+    scenarios: &[Scenario],
+    jobs: &[Job],
+    outcomes: &[LoopOutcome],
+    work: &'static str,
+) -> Vec<Row> {
     let nominal: Vec<&LoopOutcome> = jobs
         .iter()
         .zip(outcomes)
@@ -298,7 +380,7 @@ fn rows(scenarios: &[Scenario], jobs: &[Job], outcomes: &[LoopOutcome]) -> Vec<R
                 .filter(|(j, _)| j.scenario_mode == Some((i, m)))
                 .map(|(j, o)| measured(j, o, nominal[j.seed]))
                 .collect();
-            rows.push(row(s, mode, &runs));
+            rows.push(row(s, mode, work, &runs));
         }
     }
     rows
@@ -308,7 +390,7 @@ fn measured(job: &Job, outcome: &LoopOutcome, nominal: &LoopOutcome) -> Measured
     let from = job.run.from;
     let hours = (job.run.duration - from) as f64 / (3600 * SECOND) as f64;
     Measured {
-        boxes_per_hour: outcome.delivered as f64 / hours,
+        work_per_hour: outcome.delivered as f64 / hours,
         nominal_per_hour: nominal.delivered_from(from) as f64 / hours,
         damage: outcome.damage.len(),
         causes: outcome.damage.iter().map(|d| d.cause).collect(),
@@ -319,11 +401,11 @@ fn measured(job: &Job, outcome: &LoopOutcome, nominal: &LoopOutcome) -> Measured
     }
 }
 
-fn row(s: &Scenario, mode: &'static str, runs: &[Measured]) -> Row {
+fn row(s: &Scenario, mode: &'static str, work: &'static str, runs: &[Measured]) -> Row {
     let n = runs.len().max(1) as f64;
     let pct: Vec<f64> = runs
         .iter()
-        .map(|r| 100.0 * r.boxes_per_hour / r.nominal_per_hour.max(f64::MIN_POSITIVE))
+        .map(|r| 100.0 * r.work_per_hour / r.nominal_per_hour.max(f64::MIN_POSITIVE))
         .collect();
     let mut delays: Vec<f64> = runs.iter().filter_map(|r| r.delay_ms).collect();
     delays.sort_by(f64::total_cmp);
@@ -337,8 +419,9 @@ fn row(s: &Scenario, mode: &'static str, runs: &[Measured]) -> Row {
         declared: s.declared,
         mode,
         runs: runs.len(),
-        boxes_per_hour: round1(runs.iter().map(|r| r.boxes_per_hour).sum::<f64>() / n),
-        nominal_boxes_per_hour: round1(runs.iter().map(|r| r.nominal_per_hour).sum::<f64>() / n),
+        work,
+        work_per_hour: round1(runs.iter().map(|r| r.work_per_hour).sum::<f64>() / n),
+        nominal_work_per_hour: round1(runs.iter().map(|r| r.nominal_per_hour).sum::<f64>() / n),
         throughput_mean_pct: round1(pct.iter().sum::<f64>() / n),
         throughput_worst_pct: round1(pct.iter().copied().fold(f64::INFINITY, f64::min)),
         damage_events: runs.iter().map(|r| r.damage).sum(),
@@ -376,12 +459,13 @@ fn preamble(args: &DemoArgs, learned_events: u64) -> String {
         FaultSet::Listed => "each fault of the plant file",
         FaultSet::All => "every fault the plant's parts can have",
     };
+    let (plant, work) = args.plant.described();
     format!(
-        "Closed loop on the simulated sorting line, model learned from one fault-free hour \
+        "Closed loop on the simulated {plant}, model learned from one fault-free hour \
          ({learned_events} events): {faults} starts 10 to 20 min into a 1 h run, on {} \
          seed(s) from {SEED}, each with its own onset. Modes: (a) no coupling, (b) def_ \
-         flags, (c) def_ and suspect_ flags, and probing moves. Throughput is against the same seed's \
-         fault-free run over the same window; damage, detection and halts count from the \
+         flags, (c) def_ and suspect_ flags, and probing moves. Throughput ({work}) is against the \
+         same seed's fault-free run over the same window; damage, detection and halts count from the \
          onset. *Declared* says what the coupling does once the fault is declared: the \
          sensor's temporal estimate stands in, or the part goes to its fallback (a sensor \
          whose edges follow the workpieces has no estimate).",
@@ -449,6 +533,9 @@ fn causes(causes: &BTreeMap<&'static str, usize>) -> String {
 /// The command that gives this run's table.
 fn command(args: &DemoArgs) -> String {
     let mut command = String::from("cargo run --release -- demo");
+    if args.plant != PlantChoice::Sorting {
+        command.push_str(&format!(" --plant {}", args.plant.name()));
+    }
     if args.faults == FaultSet::All {
         command.push_str(" --faults all");
     }
@@ -535,6 +622,7 @@ mod tests {
             write_docs: true,
             seeds,
             faults,
+            plant: PlantChoice::Sorting,
         };
         assert_eq!(
             command(&args(1, FaultSet::Listed)),
@@ -543,6 +631,14 @@ mod tests {
         assert_eq!(
             command(&args(20, FaultSet::All)),
             "cargo run --release -- demo --faults all --seeds 20"
+        );
+        let cylinders = DemoArgs {
+            plant: PlantChoice::Cylinders,
+            ..args(20, FaultSet::All)
+        };
+        assert_eq!(
+            command(&cylinders),
+            "cargo run --release -- demo --plant cylinders --faults all --seeds 20"
         );
     }
 }

@@ -10,6 +10,7 @@ use clap::Args;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
+use filter_coupling::filter::{Coupling, Filter};
 use logs::{IngestOptions, LogFormat};
 use runtime::monitor::{Config, SourceConfig};
 
@@ -82,6 +83,14 @@ pub struct MonitorArgs {
     /// value again.
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
+    /// Make probing moves (with --modbus only): where a part's verdict stays
+    /// ambiguous while its orders wait, ask the PLC's filter, through the
+    /// probe coils, for a move of one of the part's outputs that a copy of the
+    /// filter (coupling def+suspect) accepts under every candidate and after
+    /// which silence tells some candidates apart. Off by default: without it,
+    /// no probe coil is ever written.
+    #[arg(long)]
+    probe: bool,
 }
 
 /// Runs `gardefou monitor`.
@@ -89,12 +98,28 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         return Err(Failure::bad("--speed: must be a positive number"));
     }
+    if args.probe && args.modbus.is_none() {
+        return Err(Failure::bad(
+            "--probe needs --modbus HOST:PORT: probing moves are written to the PLC's probe coils",
+        ));
+    }
     let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
     let model = Model::from_path(&args.model).map_err(Failure::bad)?;
-    let config = config(&args, &plant);
+    let mut config = config(&args, &plant);
+    if args.probe {
+        // The coupling the PLC's filter reads the flags with: a suspected
+        // sensor reads the union of reading and estimate, so a move it
+        // accepts is safe under every candidate.
+        let filter = Filter::new(&plant, Some(&model), Coupling::FlagsAndSuspects)
+            .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
+        config.probe = Some(filter);
+    }
     let options = DiagnoserOptions {
         glitch_max: args.glitch_max,
         polled: config.source.polled(),
+        // Beside a live PLC, the flags go back to its filter, which may then
+        // hold the control's reaction to an edge back.
+        held_reactions: config.source.polled(),
     };
     let diagnoser = PlantDiagnoser::new(&plant, &model, &options)
         .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
@@ -137,5 +162,6 @@ fn config(args: &MonitorArgs, plant: &Plant) -> Config {
         output: args.output.clone(),
         speed: args.speed,
         duration: args.duration.map(wall),
+        probe: None,
     }
 }

@@ -121,6 +121,12 @@ pub struct SimulateArgs {
     /// How the virtual PLC's filter uses the flags clients write [default: def].
     #[arg(long, value_enum)]
     coupling: Option<CouplingArg>,
+    /// A plant file for the virtual PLC's filter and register map (its
+    /// constraints, observers, faults, partitions and `[modbus]`) instead of
+    /// the shipped sorting line's; its signals must be the sorting line's, in
+    /// the same order. Only with --serve-modbus.
+    #[arg(long, value_name = "FILE")]
+    plant_file: Option<PathBuf>,
 }
 
 /// The generated plant of `--plant-seed` and `--size`, if asked for.
@@ -157,10 +163,19 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
             .as_ref()
             .map_or(10 * MS, |g| g.plant().scan_period),
     };
-    let plant = match (&generated, args.plant) {
-        (Some(g), _) => g.plant().clone(),
-        (None, PlantKind::Cylinders) => cylinders::plant(),
-        (None, _) => sorting::plant(),
+    let plant = match (&generated, args.plant, &args.plant_file) {
+        (_, PlantKind::Sorting, Some(file)) if args.serve_modbus.is_some() => {
+            sorting_plant_file(file)?
+        }
+        (_, _, Some(_)) => {
+            return Err(Failure::BadInput(
+                "--plant-file only goes with --serve-modbus ADDR (the virtual PLC, sorting line)"
+                    .into(),
+            ));
+        }
+        (Some(g), _, None) => g.plant().clone(),
+        (None, PlantKind::Cylinders, None) => cylinders::plant(),
+        (None, _, None) => sorting::plant(),
     };
     let faults = args
         .faults
@@ -249,6 +264,28 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
         },
     };
     virtual_plc::run(&plant, plc)
+}
+
+/// The plant file `path`, for the virtual PLC: the sorting line's physics
+/// drive its signals by index, so they must be the sorting line's, in order.
+fn sorting_plant_file(path: &Path) -> Result<diagnoser::Plant, Failure> {
+    let plant = diagnoser::Plant::from_path(path).map_err(Failure::bad)?;
+    let signals = |p: &diagnoser::Plant| -> Vec<(String, diagnoser::SignalKind)> {
+        p.signals
+            .iter()
+            .map(|(_, s)| (s.name.clone(), s.kind))
+            .collect()
+    };
+    let line = signals(&sorting::plant());
+    if signals(&plant) != line {
+        let names: Vec<&str> = line.iter().map(|(n, _)| n.as_str()).collect();
+        return Err(Failure::BadInput(format!(
+            "{}: field 'signals': the virtual PLC runs the sorting line: its plant file must declare the line's signals, in order ({})",
+            path.display(),
+            names.join(" ")
+        )));
+    }
+    Ok(plant)
 }
 
 /// Runs the plant to the end and writes its files into `--out`.

@@ -376,6 +376,8 @@ fn flag_a_virtual_plc_which_goes_on() -> Result<(), f64> {
     // Some 90 s of line after the flag at ~300 boxes/h: about seven boxes.
     let since = summary["delivered_since_flag"].as_u64().expect("a count");
     assert!(since >= 4, "{summary}");
+    // Without --probe, no probe coil is ever written.
+    assert_eq!(summary["probe_writes"], 0, "{summary}");
     Ok(())
 }
 
@@ -460,11 +462,23 @@ fn virtual_plc(model: &Path, duration: &str, fault: Option<&str>) -> (Child, u16
 
 /// The virtual PLC at `speed`, and its port.
 fn virtual_plc_at(speed: u32, model: &Path, duration: &str, fault: Option<&str>) -> (Child, u16) {
+    virtual_plc_with(speed, model, duration, fault, &[])
+}
+
+/// The same, with more arguments.
+fn virtual_plc_with(
+    speed: u32,
+    model: &Path,
+    duration: &str,
+    fault: Option<&str>,
+    extra: &[&std::ffi::OsStr],
+) -> (Child, u16) {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_gardefou"));
     cmd.args(["simulate", "--serve-modbus", "127.0.0.1:0", "--realtime"])
         .args(["--speed", &speed.to_string(), "--duration", duration])
         .arg("--model")
-        .arg(model);
+        .arg(model)
+        .args(extra);
     if let Some(f) = fault {
         cmd.args(["--fault", f]);
     }
@@ -494,6 +508,18 @@ fn monitor_at_4x(plant: &Path, model: &Path, port: u16, duration: &str) -> Lines
 
 /// The monitor at `speed` on `port` for `duration`.
 fn monitor_at(speed: u32, plant: &Path, model: &Path, port: u16, duration: &str) -> Lines {
+    monitor_with(speed, plant, model, port, duration, &[])
+}
+
+/// The same, with more arguments.
+fn monitor_with(
+    speed: u32,
+    plant: &Path,
+    model: &Path,
+    port: u16,
+    duration: &str,
+    extra: &[&str],
+) -> Lines {
     Lines::spawn(
         Command::new(env!("CARGO_BIN_EXE_gardefou"))
             .args(["monitor", "--plant"])
@@ -501,7 +527,8 @@ fn monitor_at(speed: u32, plant: &Path, model: &Path, port: u16, duration: &str)
             .arg("--model")
             .arg(model)
             .args(["--modbus", &format!("127.0.0.1:{port}")])
-            .args(["--speed", &speed.to_string(), "--duration", duration]),
+            .args(["--speed", &speed.to_string(), "--duration", duration])
+            .args(extra),
     )
 }
 
@@ -608,15 +635,20 @@ fn excused_if_late(
 /// Stops the virtual PLC and reads, from its summary, how far behind real
 /// time it fell at worst, in simulated milliseconds.
 fn most_late_ms(plc: &mut Child) -> f64 {
+    let summary = stop_plc(plc);
+    summary["most_late_ms"].as_f64().expect("most_late_ms")
+}
+
+/// Stops the virtual PLC; its summary.
+fn stop_plc(plc: &mut Child) -> serde_json::Value {
     // SAFETY: signals the child this test started.
     unsafe { libc::kill(plc.id() as i32, libc::SIGTERM) };
     let mut out = String::new();
     let stdout = plc.stdout.as_mut().expect("stdout");
     stdout.read_to_string(&mut out).expect("the summary");
     let _ = plc.wait();
-    let summary: serde_json::Value = serde_json::from_str(out.trim())
-        .unwrap_or_else(|e| panic!("the virtual PLC's summary {out:?}: {e}"));
-    summary["most_late_ms"].as_f64().expect("most_late_ms")
+    serde_json::from_str(out.trim())
+        .unwrap_or_else(|e| panic!("the virtual PLC's summary {out:?}: {e}"))
 }
 
 /// Through the same slow network, C4 stuck at 1 from 60 s: F2 is labelled and
@@ -712,4 +744,159 @@ fn rfc3339_seconds(t: &str) -> f64 {
         hms.next().unwrap_or(0.0),
     );
     days as f64 * 86_400.0 + h * 3600.0 + mi * 60.0 + s
+}
+
+/// The sorting line without the four constraints that forbid reversing the
+/// turntable away from a position (CSs8, CSs13, CSs14, CSs15), as in
+/// `tests/it/probing.rs`: there, releasing A4 tells C5 stuck at 0 (the plate
+/// comes back to C4) from the plate blocked in transit (it does not). Written
+/// as a plant file into `dir`, for the virtual PLC and the monitor alike.
+fn reversible_line(dir: &Path) -> (diagnoser::Plant, std::path::PathBuf) {
+    let mut text = datasets::sorting::PLANT_TOML.to_string();
+    for name in ["CSs8", "CSs13", "CSs14", "CSs15"] {
+        let at = text.find(&format!("name = \"{name}\"")).expect(name);
+        let start = text[..at].rfind("[[constraints]]").expect("its table");
+        let end = text[at..].find("\n[").map_or(text.len(), |e| at + e + 1);
+        text.replace_range(start..end, "");
+    }
+    let path = dir.join("reversible.toml");
+    std::fs::write(&path, &text).expect("writes the plant file");
+    let plant = diagnoser::Plant::from_path(&path).expect("parses");
+    let shipped = datasets::sorting::plant();
+    assert_eq!(plant.constraints.len(), shipped.constraints.len() - 4);
+    (plant, path)
+}
+
+/// The seed of the virtual PLC's runs here (`simulate`'s default).
+const SEED: u64 = 7;
+
+/// The first time after `after` the fault-free line of [`SEED`] brings the
+/// turntable back to loading, plus a scan: C5 stuck at 0 from then shows on
+/// the next rotation as the ambiguity "F3, F11".
+fn back_at_loading(plant: &diagnoser::Plant, after: diagnoser::Time) -> diagnoser::Time {
+    let normal = runtime::closed_loop::record(plant, SEED, after + 120 * diagnoser::SECOND)
+        .expect("records");
+    let c4 = plant.signals.id("C4").expect("C4");
+    let back = normal
+        .events
+        .iter()
+        .find(|e| e.signal == c4 && e.value && e.t > after)
+        .expect("the turntable comes back");
+    back.t + 10 * diagnoser::MS
+}
+
+/// The virtual PLC at 4× on the reversible line (its plant file `plant`),
+/// coupled by `def_` and `suspect_` flags, with C5 stuck at 0 from the
+/// turntable's first return to loading; its port.
+fn reversible_plc(plant: &diagnoser::Plant, file: &Path, model: &Path) -> (Child, u16) {
+    let onset = back_at_loading(plant, 20 * diagnoser::SECOND);
+    let fault = format!("F3@{}ms", onset / diagnoser::MS);
+    let seed = SEED.to_string();
+    let extra: [&std::ffi::OsStr; 6] = [
+        "--coupling".as_ref(),
+        "def+suspect".as_ref(),
+        "--plant-file".as_ref(),
+        file.as_os_str(),
+        "--seed".as_ref(),
+        seed.as_ref(),
+    ];
+    virtual_plc_with(4, model, "150s", Some(&fault), &extra)
+}
+
+/// `monitor --probe` beside the virtual PLC of the reversible line: the
+/// turntable turns ambiguous between F3 and F11 while A4 waits for C5; the
+/// monitor asks the PLC to release A4, the plate comes back to C4, and the
+/// verdict line that says F3 gives the probe as its reason.
+#[test]
+fn with_probe_the_monitor_releases_a4_to_tell_a_stuck_c5_from_a_blocked_plate() {
+    let _serial = serial();
+    on_time("monitor --probe", probe_the_reversible_line);
+}
+
+fn probe_the_reversible_line() -> Result<(), f64> {
+    // Under fault-free control the turntable never turns back: the hour the
+    // shared model is learned from is the same on both lines.
+    let (_learned, _, model) = learned_virtual_plc();
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let (plant, file) = reversible_line(dir.path());
+    let (mut plc, port) = reversible_plc(&plant, &file, model);
+    let mut mon = monitor_with(4, &file, model, port, "60s", &["--probe"]);
+    let Some(told) = mon.wait_for("released A4", Duration::from_secs(45)) else {
+        let failure = Some(format!("no probe told: {:?}", mon.seen));
+        return excused_if_late(failure, || most_late_ms(&mut plc), VIRTUAL_LATE_MS);
+    };
+    let v: serde_json::Value = serde_json::from_str(&told).expect("a JSON verdict line");
+    let reason = v["reason"].as_str().expect("a reason");
+    assert_eq!(v["part"], "turntable", "{told}");
+    assert!(
+        reason.starts_with("released A4 to tell F3, F11 apart"),
+        "{told}"
+    );
+    assert!(reason.ends_with("so F3"), "{told}");
+    assert_eq!(v["labels"], serde_json::json!(["F3"]), "{told}");
+    assert!(
+        mon.seen
+            .iter()
+            .any(|l| l.contains("\"labels\":[\"F3\",\"F11\"]")),
+        "{:?}",
+        mon.seen
+    );
+    // SAFETY: signals the child this test started.
+    unsafe { libc::kill(mon.child.id() as i32, libc::SIGTERM) };
+    let status = mon.child.wait().expect("the monitor ends");
+    let err = mon.stderr();
+    assert!(status.success(), "{err}");
+    assert!(
+        err.contains("monitor: probing turntable at")
+            && err.contains(
+                "released A4 to tell F3, F11 apart (writing A4_PROBE_VALUE = 0, then A4_PROBE = 1)"
+            ),
+        "{err}"
+    );
+    assert!(
+        err.contains("monitor: probe of turntable ended at"),
+        "{err}"
+    );
+    let summary = stop_plc(&mut plc);
+    assert_eq!(summary["probe_requests"], 1, "{summary}");
+    assert_eq!(summary["damage"], serde_json::json!([]), "{summary}");
+    Ok(())
+}
+
+/// The same line and fault without `--probe`: the turntable stays
+/// ambiguous, and no probe coil is ever written.
+#[test]
+fn without_probe_no_probe_coil_is_written_where_a_probe_would_be_made() {
+    let _serial = serial();
+    on_time("monitor without --probe", watch_the_reversible_line);
+}
+
+fn watch_the_reversible_line() -> Result<(), f64> {
+    let (_learned, _, model) = learned_virtual_plc();
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let (plant, file) = reversible_line(dir.path());
+    let (mut plc, port) = reversible_plc(&plant, &file, model);
+    let mut mon = monitor_at(4, &file, model, port, "60s");
+    let ambiguous = "\"labels\":[\"F3\",\"F11\"]";
+    if mon.wait_for(ambiguous, Duration::from_secs(45)).is_none() {
+        let failure = Some(format!("never ambiguous: {:?}", mon.seen));
+        return excused_if_late(failure, || most_late_ms(&mut plc), VIRTUAL_LATE_MS);
+    }
+    // Past the wait before a probe (2 s of the plant) and the answer that
+    // one would have brought (3 s), at 4×.
+    let after = mon.wait_for("\"part\":\"turntable\"", Duration::from_secs(3));
+    assert!(
+        after.is_none(),
+        "the turntable's verdict changed: {after:?}"
+    );
+    // SAFETY: signals the child this test started.
+    unsafe { libc::kill(mon.child.id() as i32, libc::SIGTERM) };
+    let status = mon.child.wait().expect("the monitor ends");
+    let err = mon.stderr();
+    assert!(status.success(), "{err}");
+    assert!(!err.contains("probing"), "{err}");
+    let summary = stop_plc(&mut plc);
+    assert_eq!(summary["probe_writes"], 0, "{summary}");
+    assert_eq!(summary["probe_requests"], 0, "{summary}");
+    Ok(())
 }

@@ -1,15 +1,23 @@
-//! The closed loop of the demo: in each scan of the simulated sorting line, safe
-//! control by constraints computes the orders through the (rewritten) safety
-//! filter, the diagnosers read the scan, and their verdicts raise the flags the
-//! filter reads from the next scan on.
+//! The closed loop of the demo: in each scan of a simulated plant (a [`Rig`]:
+//! the sorting line or the four-cylinder rig), the plant's functional program,
+//! if it has one, sets the plant file's variables (the rig's GRAFCET steps),
+//! safe control by constraints computes the orders through the (rewritten)
+//! safety filter, the diagnosers read the scan, and their verdicts raise the
+//! flags the filter reads from the next scan on.
+//!
+//! Nothing in the loop is written for one plant: the program reads the sensors
+//! as the filter's functional constraints do ([`Filter::certain_sensors`]),
+//! and every plant-specific rule is in its plant file.
 
+use datasets::cylinders::{ConstraintControl, CylinderConfig, CylinderIds, CylinderRig};
 use datasets::inject::Injection;
 use datasets::sim::{Controller, Damage, MemorySink, Physics, ScanSink, SimConfig};
 use datasets::sorting::{SortingConfig, SortingLine};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
+use diagnoser::fault::FaultTarget;
 use diagnoser::model::Model;
 use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time, TimeFormat, TimeUnit};
-use filter_coupling::filter::{Coupling, Filter, Mode};
+use filter_coupling::filter::{Coupling, Filter, Mode, Request};
 use learning::learn::{LearnOptions, Learner};
 use logs::LogStream;
 use rand_chacha::ChaCha8Rng;
@@ -88,6 +96,12 @@ pub struct CoupledPlc {
     verdicts: Vec<Verdict>,
     /// Probing, when on: the plant and what it watches.
     probing: Option<Prober>,
+    /// What the last scan did with the orders requested from outside.
+    last_requests: Vec<(String, Request)>,
+    /// The functional program beside the filter, and the variables it sets.
+    program: Option<(ConstraintControl, Vec<String>)>,
+    /// Scratch: the sensors as the program reads them.
+    sensors: Vec<bool>,
 }
 
 impl CoupledPlc {
@@ -107,6 +121,31 @@ impl CoupledPlc {
             fallback_scans: 0,
             verdicts: Vec::new(),
             probing: None,
+            last_requests: Vec::new(),
+            program: None,
+            sensors: Vec::new(),
+        }
+    }
+
+    /// Runs `program` beside the filter: in each scan, it reads the sensors
+    /// as the functional constraints do ([`Filter::certain_sensors`]) and
+    /// sets `plant`'s variables, in their plant-file order, for the filter's
+    /// functional constraints.
+    pub fn with_program(mut self, plant: &Plant, program: ConstraintControl) -> CoupledPlc {
+        self.program = Some((program, plant.variables.clone()));
+        self
+    }
+
+    /// Sets the program's variables for this scan.
+    fn run_program(&mut self, io: &[bool]) {
+        let Some((program, variables)) = self.program.as_mut() else {
+            return;
+        };
+        self.sensors.clear();
+        self.sensors.extend_from_slice(io);
+        self.filter.certain_sensors(&mut self.sensors);
+        for (name, value) in variables.iter().zip(program.evolve(&self.sensors)) {
+            self.filter.set(name, value);
         }
     }
 
@@ -125,6 +164,12 @@ impl CoupledPlc {
     /// Scans in which the filter overrode the computed orders, from `from` on.
     pub fn fallback_scans(&self) -> u64 {
         self.fallback_scans
+    }
+
+    /// What the last scan did with each order requested through
+    /// [`Filter::request`] (a probing move asked over Modbus).
+    pub fn last_requests(&self) -> &[(String, Request)] {
+        &self.last_requests
     }
 
     fn apply_verdicts(&mut self) {
@@ -167,10 +212,12 @@ impl CoupledPlc {
 impl Controller for CoupledPlc {
     fn scan(&mut self, t: Time, io: &mut [bool]) {
         self.apply_verdicts();
+        self.run_program(io);
         let outcome = self.filter.scan(t, io, Mode::Control);
         if outcome.fallback || !outcome.parts_in_fallback.is_empty() {
             self.fallback_scans += u64::from(t >= self.from);
         }
+        self.last_requests = outcome.requests;
         let Some(diagnoser) = self.diagnoser.as_mut() else {
             return;
         };
@@ -202,9 +249,119 @@ impl Controller for CoupledPlc {
     }
 }
 
-/// The sorting line, watched for deliveries and halts.
+/// A simulated plant the closed loop can run: its physics, and the
+/// functional program that sets the plant file's `variables` each scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rig {
+    /// The sorting line: safe control by its constraints alone; work is
+    /// boxes delivered on either side.
+    Sorting,
+    /// The four-cylinder rig: the cylinders' GRAFCETs set X1, X11, X21, X31,
+    /// and safe control by constraints computes the orders; work is objects
+    /// pushed from one corner to the next.
+    Cylinders,
+}
+
+impl Rig {
+    /// The simulator whose signals `plant` has, and which it must keep: a
+    /// plant is run by the simulator it describes.
+    pub fn of(plant: &Plant) -> Result<Rig, String> {
+        let same = |other: &Plant| {
+            let names = |p: &Plant| {
+                p.signals
+                    .iter()
+                    .map(|(_, s)| s.name.clone())
+                    .collect::<Vec<_>>()
+            };
+            names(plant) == names(other)
+        };
+        if same(&datasets::sorting::plant()) {
+            Ok(Rig::Sorting)
+        } else if same(&datasets::cylinders::plant()) {
+            Ok(Rig::Cylinders)
+        } else {
+            Err(format!(
+                "no simulator for plant '{}': the closed loop runs the sorting line and the \
+                 cylinder rig, with their plant files' signals",
+                plant.name
+            ))
+        }
+    }
+
+    /// Whether the rig's simulator can make `fault`; if not, why. Sensor and
+    /// actuator faults are made on the signals; an element fault needs an
+    /// element and the sensors at its ends (a rod is not blocked "at" a
+    /// presence sensor).
+    pub fn simulates(self, fault: &FaultTemplate) -> Result<(), String> {
+        if fault.target() != FaultTarget::Element {
+            return Ok(());
+        }
+        Watched::new(self, 0).inject_element_fault(fault)
+    }
+
+    /// What a unit of work is, for tables.
+    pub fn work(self) -> &'static str {
+        match self {
+            Rig::Sorting => "boxes delivered",
+            Rig::Cylinders => "objects moved",
+        }
+    }
+
+    /// The functional program beside the filter, if the plant has one.
+    fn program(self) -> Option<ConstraintControl> {
+        match self {
+            Rig::Sorting => None,
+            Rig::Cylinders => {
+                let plant = datasets::cylinders::plant();
+                CylinderIds::resolve(&plant)
+                    .ok()
+                    .map(ConstraintControl::new)
+            }
+        }
+    }
+}
+
+/// The physics of a [`Rig`].
+enum Machine {
+    Sorting(Box<SortingLine>),
+    Cylinders(Box<CylinderRig>),
+}
+
+impl Machine {
+    fn physics(&self) -> &dyn Physics {
+        match self {
+            Machine::Sorting(m) => m.as_ref(),
+            Machine::Cylinders(m) => m.as_ref(),
+        }
+    }
+
+    fn physics_mut(&mut self) -> &mut dyn Physics {
+        match self {
+            Machine::Sorting(m) => m.as_mut(),
+            Machine::Cylinders(m) => m.as_mut(),
+        }
+    }
+
+    /// Work done so far.
+    fn work_done(&self) -> u64 {
+        match self {
+            Machine::Sorting(m) => m.delivered(),
+            Machine::Cylinders(m) => m.moves(),
+        }
+    }
+
+    /// Whether work waits to be done: only then does a pause count as halted.
+    fn work_waiting(&self) -> bool {
+        match self {
+            Machine::Sorting(m) => m.occupied(),
+            Machine::Cylinders(m) => !m.objects().is_empty(),
+        }
+    }
+}
+
+/// A rig, watched for work done and halts.
 pub(crate) struct Watched {
-    line: SortingLine,
+    machine: Machine,
     from: Time,
     last_progress: Time,
     halted: Time,
@@ -213,10 +370,16 @@ pub(crate) struct Watched {
 }
 
 impl Watched {
-    /// The default sorting line; deliveries and halts count from `from` on.
-    pub(crate) fn new(from: Time) -> Watched {
+    /// `rig` in its default configuration; work and halts count from `from` on.
+    pub(crate) fn new(rig: Rig, from: Time) -> Watched {
+        let machine = match rig {
+            Rig::Sorting => Machine::Sorting(Box::new(SortingLine::new(SortingConfig::default()))),
+            Rig::Cylinders => {
+                Machine::Cylinders(Box::new(CylinderRig::new(CylinderConfig::default())))
+            }
+        };
         Watched {
-            line: SortingLine::new(SortingConfig::default()),
+            machine,
             from,
             last_progress: 0,
             halted: 0,
@@ -225,7 +388,7 @@ impl Watched {
         }
     }
 
-    /// Boxes delivered on both sides after `from`.
+    /// Work done after `from`.
     pub(crate) fn delivered(&self) -> u64 {
         let before = self.deliveries.partition_point(|&t| t <= self.from);
         (self.deliveries.len() - before) as u64
@@ -234,18 +397,19 @@ impl Watched {
 
 impl Physics for Watched {
     fn plant(&self) -> &Plant {
-        self.line.plant()
+        self.machine.physics().plant()
     }
     fn plant_toml(&self) -> &str {
-        self.line.plant_toml()
+        self.machine.physics().plant_toml()
     }
     fn advance(&mut self, t: Time, act: &[bool], rng: &mut ChaCha8Rng, damage: &mut Vec<Damage>) {
-        let before = self.line.delivered();
-        self.line.advance(t, act, rng, damage);
-        for _ in before..self.line.delivered() {
+        let before = self.machine.work_done();
+        self.machine.physics_mut().advance(t, act, rng, damage);
+        let after = self.machine.work_done();
+        for _ in before..after {
             self.deliveries.push(t);
         }
-        if t <= self.from || self.line.delivered() > before || !self.line.occupied() {
+        if t <= self.from || after > before || !self.machine.work_waiting() {
             self.last_progress = t;
         } else if let Some(last) = self.last_t
             && t - self.last_progress > HALT_AFTER
@@ -255,13 +419,13 @@ impl Physics for Watched {
         self.last_t = Some(t);
     }
     fn read_sensors(&self, io: &mut [bool]) {
-        self.line.read_sensors(io);
+        self.machine.physics().read_sensors(io);
     }
     fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String> {
-        self.line.inject_element_fault(template)
+        self.machine.physics_mut().inject_element_fault(template)
     }
     fn counters(&self) -> Vec<(String, u64)> {
-        self.line.counters()
+        self.machine.physics().counters()
     }
 }
 
@@ -273,7 +437,7 @@ impl ScanSink for NoSink {
     }
 }
 
-/// Records a fault-free run of the sorting line under safe control by
+/// Records a fault-free run of `plant`'s rig under safe control by
 /// constraints (no coupling), to learn a model from.
 pub fn record(plant: &Plant, seed: u64, duration: Time) -> Result<MemorySink, String> {
     let run = LoopRun {
@@ -309,7 +473,7 @@ pub fn learned(plant: &Plant, seed: u64, duration: Time) -> Result<Model, String
     Ok(learner.finish())
 }
 
-/// Runs the sorting line in closed loop with `model`'s diagnosers and estimates.
+/// Runs `plant`'s rig in closed loop with `model`'s diagnosers and estimates.
 pub fn run(plant: &Plant, model: &Model, run: &LoopRun) -> Result<LoopOutcome, String> {
     simulate(plant, Some(model), run, &mut NoSink)
 }
@@ -322,14 +486,25 @@ fn simulate(
 ) -> Result<LoopOutcome, String> {
     let filter = Filter::new(plant, model, run.coupling)?;
     let diagnoser = match model {
-        Some(m) => Some(PlantDiagnoser::new(plant, m, &DiagnoserOptions::default())?),
+        Some(m) => {
+            // A coupled filter may hold the control's reaction to an edge back.
+            let options = DiagnoserOptions {
+                held_reactions: run.coupling != Coupling::None,
+                ..DiagnoserOptions::default()
+            };
+            Some(PlantDiagnoser::new(plant, m, &options)?)
+        }
         None => None,
     };
     let mut plc = CoupledPlc::new(filter, diagnoser, run.from);
     if run.probe {
         plc = plc.with_probing(plant);
     }
-    let mut physics = Watched::new(run.from);
+    let rig = Rig::of(plant)?;
+    if let Some(program) = rig.program() {
+        plc = plc.with_program(plant, program);
+    }
+    let mut physics = Watched::new(rig, run.from);
     let config = SimConfig {
         duration: run.duration,
         scan_period: plant.scan_period,

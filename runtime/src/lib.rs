@@ -10,9 +10,10 @@
 //!   (`gardefou simulate --serve-modbus`).
 //! - [`flags`]: verdicts to the `def_` and `suspect_` flags a PLC's filter
 //!   reads, shared by the monitor and the closed loop.
-//! - [`closed_loop`]: the demo's loop (`gardefou demo`): the simulated sorting
-//!   line, safe control through the rewritten filter, the diagnosers, and
-//!   their flags back to the filter.
+//! - [`closed_loop`]: the demo's loop (`gardefou demo`): a simulated plant
+//!   (the sorting line, or the cylinder rig under its GRAFCETs), safe control
+//!   through the rewritten filter, the diagnosers, and their flags back to
+//!   the filter.
 //! - [`probe`]: active diagnosis: a move of an ambiguous, waiting part that the
 //!   filter allows under every candidate and whose outcome separates them.
 //!

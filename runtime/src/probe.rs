@@ -8,7 +8,10 @@
 //!    suspected partitions' sensors read conservatively (the union of reading
 //!    and estimate, see `filter_coupling::rewrite`), accepts the move in the
 //!    next scan: no safety constraint forbids it. A constraint that forbids it
-//!    under one candidate forbids it under the union.
+//!    under one candidate forbids it under the union. The other orders of
+//!    that scan are those safe control computes in the closed loop, and those
+//!    the PLC keeps beside a real one (the monitor's `--probe`, see
+//!    [`Prober::proposed_by`]).
 //! 2. **It separates candidates.** The part's diagnoser, copied, is given the
 //!    move and then silence: deadline after deadline, up to [`HORIZON`]. The
 //!    move separates if silence rules out some candidates but not all: then
@@ -99,6 +102,8 @@ pub struct Prober {
     active: Option<Probe>,
     probes: Vec<ProbeRecord>,
     no_probe: Vec<String>,
+    /// Where the orders of the scan a move is checked in come from.
+    mode: Mode,
 }
 
 #[derive(Clone, Default)]
@@ -108,6 +113,10 @@ struct PartWatch {
     orders: Vec<bool>,
     orders_since: Time,
     searched: bool,
+    /// The candidate sets already probed: each is probed once, so that a
+    /// move whose outcome left the part ambiguous (or unexplained) again is
+    /// not repeated for ever.
+    probed: Vec<Vec<String>>,
 }
 
 impl Prober {
@@ -119,7 +128,19 @@ impl Prober {
             active: None,
             probes: Vec::new(),
             no_probe: Vec::new(),
+            mode: Mode::Control,
         }
+    }
+
+    /// Checks each move on a filter scanning in `mode`. The closed loop's
+    /// filter computes the orders (safe control, [`Mode::Control`], the
+    /// default); beside a real PLC its program proposes them, and the copy the
+    /// monitor keeps takes the orders it read as the proposal
+    /// ([`Mode::Filter`]): a move is then checked against the orders the PLC
+    /// keeps, not against those safe control would compute.
+    pub fn proposed_by(mut self, mode: Mode) -> Prober {
+        self.mode = mode;
+        self
     }
 
     /// The probe under way, if any.
@@ -140,6 +161,20 @@ impl Prober {
     /// The probes made and the reasons for none, to keep after the run.
     pub fn into_findings(self) -> (Vec<ProbeRecord>, Vec<String>) {
         (self.probes, self.no_probe)
+    }
+
+    /// Ends the probe under way, if any, without waiting for its answer
+    /// (the plant is no longer seen, or the run stops): the output goes back
+    /// to the control, and `why` is what the record says.
+    pub fn abandon(&mut self, why: &str, filter: &mut Filter) -> Option<&ProbeRecord> {
+        let probe = self.active.take()?;
+        filter.request(&probe.actuator, None);
+        self.probes.push(ProbeRecord {
+            t: probe.from,
+            part: probe.part.clone(),
+            reason: format!("{}: {why}", probe.describe()),
+        });
+        self.probes.last()
     }
 
     /// A part's new verdict: it answers the probe under way if its labels
@@ -195,12 +230,13 @@ impl Prober {
         for (w, part) in self.parts.iter_mut().zip(&self.plant.parts) {
             let Some(v) = &w.verdict else { continue };
             let waiting = t >= w.since + PATIENCE && t >= w.orders_since + PATIENCE;
-            if w.searched || !waiting || !worth_probing(v) {
+            if w.searched || !waiting || !worth_probing(v) || w.probed.contains(&v.labels) {
                 continue;
             }
             w.searched = true;
-            match search(&self.plant, part, filter, diagnoser, v, t, io) {
+            match search(&self.plant, part, filter, self.mode, diagnoser, v, t, io) {
                 Ok(p) => {
+                    w.probed.push(v.labels.clone());
                     filter.request(&p.actuator, Some(p.value));
                     self.active = Some(p);
                     return;
@@ -219,11 +255,14 @@ impl Prober {
 }
 
 /// Searches `part`'s outputs for a probe at `t`, the scan whose orders and
-/// sensors `io` holds. `Err` gives, per output, why it is no probe.
+/// sensors `io` holds, each move checked on `filter` scanning in `mode`.
+/// `Err` gives, per output, why it is no probe.
+#[allow(clippy::too_many_arguments)] // the scan a move is checked in, whole
 pub fn search(
     plant: &Plant,
     part: &Part,
     filter: &Filter,
+    mode: Mode,
     diagnoser: &PlantDiagnoser,
     verdict: &Verdict,
     t: Time,
@@ -234,7 +273,7 @@ pub fn search(
     for &a in &part.actuators {
         let name = plant.signals.name(a);
         let value = !io[a.index()];
-        if let Err(why) = accepted(plant, filter, name, value, next, io) {
+        if let Err(why) = accepted(plant, filter, mode, name, value, next, io) {
             refused.push(format!("{name} = {}: {why}", u8::from(value)));
             continue;
         }
@@ -258,11 +297,13 @@ pub fn search(
     Err(refused)
 }
 
-/// Whether the filter would take `actuator` at `value` in the next scan; if
-/// not, the constraints that forbid it, as the plant file writes them.
+/// Whether the filter, scanning in `mode`, would take `actuator` at `value`
+/// in the next scan; if not, the constraints that forbid it, as the plant
+/// file writes them.
 fn accepted(
     plant: &Plant,
     filter: &Filter,
+    mode: Mode,
     actuator: &str,
     value: bool,
     t: Time,
@@ -271,7 +312,7 @@ fn accepted(
     let mut f = filter.clone();
     f.request(actuator, Some(value));
     let mut next = io.to_vec();
-    let outcome = f.scan(t, &mut next, Mode::Control);
+    let outcome = f.scan(t, &mut next, mode);
     match outcome
         .requests
         .into_iter()

@@ -45,7 +45,7 @@ fn row<'a>(rows: &'a [Value], fault: &str, mode: &str) -> &'a Value {
 }
 
 fn ratio(r: &Value) -> f64 {
-    let nominal = r["nominal_boxes_per_hour"].as_f64().expect("nominal");
+    let nominal = r["nominal_work_per_hour"].as_f64().expect("nominal");
     assert!(nominal > 250.0, "the fault-free line delivers: {r}");
     r["throughput_worst_pct"]
         .as_f64()
@@ -64,8 +64,8 @@ fn coupling_keeps_production_safe_through_sensor_faults() {
             "declared",
             "mode",
             "runs",
-            "boxes_per_hour",
-            "nominal_boxes_per_hour",
+            "work_per_hour",
+            "nominal_work_per_hour",
             "throughput_mean_pct",
             "throughput_worst_pct",
             "damage_events",

@@ -16,6 +16,7 @@ mod support;
 
 mod check_filter;
 mod control_law;
+mod cylinders_loop;
 mod demo_cli;
 mod diagnose_cli;
 mod diagnosis_soundness;

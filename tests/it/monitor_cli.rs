@@ -489,6 +489,21 @@ fn a_source_is_required() {
     assert_eq!(o.status.code(), Some(2));
 }
 
+/// Probing moves are written to a PLC's probe coils: `--probe` with a source
+/// that cannot write is refused in one line.
+#[test]
+fn probe_needs_modbus() {
+    let o = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(["monitor", "--plant", &path("datasets/plants/sorting.toml")])
+        .args(["--model", &path(MODEL), "--stdin", "--probe"])
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("--probe needs --modbus"), "{err}");
+}
+
 /// The shipped F2 run fed as JSON lines, with stale lines (timestamps going
 /// backwards) slipped in after the detection: each is a warning, and `def_C4`
 /// stays raised to the end. SIGTERM then ends the monitor cleanly, with its

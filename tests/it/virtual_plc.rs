@@ -118,8 +118,20 @@ fn constraint_control_logs_are_learnable() {
 
 #[test]
 fn bad_arguments_fail_with_one_line() {
-    let cases: [&[&str]; 5] = [
+    let cylinders = crate::support::repo("datasets/plants/cylinders.toml");
+    let cases: [&[&str]; 7] = [
         &["--plant", "cylinders", "--control", "constraints"],
+        &["--plant-file", &cylinders],
+        // The virtual PLC runs the sorting line: another plant's file is refused.
+        &[
+            "--serve-modbus",
+            "127.0.0.1:0",
+            "--realtime",
+            "--model",
+            "m.json",
+            "--plant-file",
+            &cylinders,
+        ],
         &["--serve-modbus", "127.0.0.1:0", "--model", "m.json"],
         &["--serve-modbus", "127.0.0.1:0", "--realtime"],
         &["--realtime", "--speed", "10"],
@@ -412,4 +424,105 @@ fn a_malformed_request_ends_its_connection_in_one_line_and_others_are_served() {
         .collect();
     assert_eq!(dropped.len(), 1, "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+/// A probing move asked over Modbus (`monitor --probe` writes the same
+/// coils): the virtual PLC's filter takes it where no safety constraint
+/// forbids it, and keeps the control's order and sets `_PROBE_REFUSED` where
+/// one does. At the start the turntable waits at loading, away from
+/// unloading, so CSs5 (`!C5 & A3`) forbids the right evacuation rollers A3;
+/// no safety constraint reads the right evacuation conveyor A6.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_virtual_plc_takes_a_probing_move_only_where_its_filter_allows_it() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = learn_constraint_model(dir.path());
+    let plant = datasets::sorting::plant();
+    let map = plant.modbus_map();
+    let coils = |name: &str| {
+        let id = plant.signals.id(name).expect("an actuator");
+        let p = map.probe(id).expect("probe coils");
+        (map.signals[id.index()].1, p.probe, p.value, p.refused)
+    };
+    let (a3, a3_probe, a3_value, a3_refused) = coils("A3");
+    let (a6, a6_probe, a6_value, a6_refused) = coils("A6");
+    // The default map: three coils per actuator from 200, in file order.
+    assert_eq!((a3_probe, a3_value, a3_refused), (209, 210, 211));
+    assert_eq!((a6_probe, a6_value, a6_refused), (218, 219, 220));
+
+    let plc = start_virtual_plc(&model, &["--duration", "1h"]);
+    let mut ctx = tokio_modbus::client::tcp::connect(plc.addr)
+        .await
+        .expect("connects");
+    let (_, before) = read_image(&mut ctx).await;
+    let a6_asked = !before[usize::from(a6)];
+    write(&mut ctx, a3_value, true).await;
+    write(&mut ctx, a3_probe, true).await;
+    write(&mut ctx, a6_value, a6_asked).await;
+    write(&mut ctx, a6_probe, true).await;
+    // Every coil up to A6_PROBE_REFUSED in one read: one image of the PLC.
+    let n = a6_refused + 1;
+    // The scans that take the requests come within a few scan periods.
+    let waited = Instant::now();
+    let mut image = coils_up_to(&mut ctx, n).await;
+    while !image[usize::from(a3_refused)] && waited.elapsed() < Duration::from_secs(10) {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        image = coils_up_to(&mut ctx, n).await;
+    }
+    let (inputs, _) = read_image(&mut ctx).await;
+    assert!(!inputs[5], "the turntable reached unloading: C5 is on");
+    assert!(image[usize::from(a3_refused)], "A3 = 1 not refused");
+    assert!(!image[usize::from(a3)], "A3 went to 1 against CSs5");
+    assert_eq!(image[usize::from(a6)], a6_asked, "A6's move not taken");
+    assert!(!image[usize::from(a6_refused)], "A6's move refused");
+
+    // The PLC alone writes the refusals.
+    let refused = ctx
+        .write_single_coil(a3_refused, false)
+        .await
+        .expect("transport");
+    assert_eq!(refused, Err(ExceptionCode::IllegalDataAddress));
+    // Released: the refusal goes down with the request.
+    write(&mut ctx, a3_probe, false).await;
+    write(&mut ctx, a6_probe, false).await;
+    let waited = Instant::now();
+    let mut image = coils_up_to(&mut ctx, n).await;
+    while image[usize::from(a3_refused)] && waited.elapsed() < Duration::from_secs(10) {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        image = coils_up_to(&mut ctx, n).await;
+    }
+    assert!(
+        !image[usize::from(a3_refused)],
+        "A3_PROBE_REFUSED stayed up"
+    );
+    assert!(!image[usize::from(a3)]);
+
+    ok(Command::new("kill")
+        .args(["-TERM", &plc.child.id().to_string()])
+        .output()
+        .expect("kill runs"));
+    let (status, summary, stderr) = plc.finish();
+    assert!(status.success(), "{stderr}");
+    assert_eq!(summary["probe_writes"], 6, "{summary}");
+    assert_eq!(summary["probe_requests"], 2, "{summary}");
+    assert!(
+        summary["probe_refused_scans"].as_u64().unwrap_or(0) > 0,
+        "{summary}"
+    );
+    assert_eq!(summary["damage"], serde_json::json!([]), "{summary}");
+    assert!(stderr.contains("2 probing move(s) requested"), "{stderr}");
+}
+
+async fn write(ctx: &mut Context, coil: u16, value: bool) {
+    ctx.write_single_coil(coil, value)
+        .await
+        .expect("transport")
+        .expect("a probe coil is writable");
+}
+
+/// Coils `0..n`, in one read.
+async fn coils_up_to(ctx: &mut Context, n: u16) -> Vec<bool> {
+    ctx.read_coils(0, n)
+        .await
+        .expect("transport")
+        .expect("no exception")
 }

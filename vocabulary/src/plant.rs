@@ -101,7 +101,10 @@ pub struct ModbusEntry {
 /// The default needs no configuration: sensors are discrete inputs 0, 1, … in
 /// plant-file order, actuators are coils 0, 1, …, and flags are coils from
 /// [`ModbusMap::FLAGS_FROM`] on, in partition order, every `def_` flag first and
-/// then every `suspect_` flag. `[modbus]` entries override single addresses.
+/// then every `suspect_` flag. Each actuator's three probe coils
+/// ([`ProbeCoil`]) follow from [`ModbusMap::PROBES_FROM`] on, in plant-file
+/// order, or from just after the highest signal or flag coil if that is
+/// higher. `[modbus]` entries override single addresses.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ModbusMap {
     /// Each signal's table and address, indexed by [`SignalId`].
@@ -109,15 +112,101 @@ pub struct ModbusMap {
     /// Each flag and its coil: every `def_` flag in partition order, then
     /// every `suspect_` flag.
     pub flags: Vec<(Flag, u16)>,
+    /// Each actuator's probe coils, in plant-file order.
+    pub probes: Vec<ProbeCoils>,
 }
 
 impl ModbusMap {
     /// The first flag coil of the default map.
     pub const FLAGS_FROM: u16 = 100;
+    /// The first probe coil of the default map, unless a signal or flag sits
+    /// at or beyond it (a plant with many partitions, or a `[modbus]` entry):
+    /// the probe coils then start just after the highest of them, so that a
+    /// default never clashes.
+    pub const PROBES_FROM: u16 = 200;
 
     /// The flag coil of `flag`, if the map has it.
     pub fn flag(&self, flag: &Flag) -> Option<u16> {
         self.flags.iter().find(|f| f.0 == *flag).map(|f| f.1)
+    }
+
+    /// The probe coils of `actuator`, if it is one.
+    pub fn probe(&self, actuator: SignalId) -> Option<&ProbeCoils> {
+        self.probes.iter().find(|p| p.actuator == actuator)
+    }
+}
+
+/// One of the three coils of an actuator's probing move (`monitor --probe`):
+/// the monitor asks the PLC's safety filter for a move of one output, which
+/// the filter takes in each scan unless a safety constraint forbids it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ProbeCoil {
+    /// `<A>_PROBE`: a probing move of A is requested (written by the monitor).
+    Probe,
+    /// `<A>_PROBE_VALUE`: the value asked for (written by the monitor).
+    Value,
+    /// `<A>_PROBE_REFUSED`: the PLC's filter refused the move in its last
+    /// scan (set by the PLC; clients may not write it).
+    Refused,
+}
+
+impl ProbeCoil {
+    /// The three, in the order of the default map.
+    pub const ALL: [ProbeCoil; 3] = [ProbeCoil::Probe, ProbeCoil::Value, ProbeCoil::Refused];
+
+    /// What follows the actuator's name in the coil's name.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            ProbeCoil::Probe => "_PROBE",
+            ProbeCoil::Value => "_PROBE_VALUE",
+            ProbeCoil::Refused => "_PROBE_REFUSED",
+        }
+    }
+
+    /// The coil's name for `actuator`, e.g. `A4_PROBE_VALUE`.
+    pub fn name(self, actuator: &str) -> String {
+        format!("{actuator}{}", self.suffix())
+    }
+
+    /// The actuator's name and the coil, if `name` ends as a probe coil's
+    /// does (the actuator is not checked).
+    pub fn parse(name: &str) -> Option<(&str, ProbeCoil)> {
+        ProbeCoil::ALL.into_iter().find_map(|c| {
+            let actuator = name.strip_suffix(c.suffix())?;
+            (!actuator.is_empty()).then_some((actuator, c))
+        })
+    }
+}
+
+/// The probe coils of one actuator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ProbeCoils {
+    /// The actuator.
+    pub actuator: SignalId,
+    /// `<A>_PROBE`.
+    pub probe: u16,
+    /// `<A>_PROBE_VALUE`.
+    pub value: u16,
+    /// `<A>_PROBE_REFUSED`.
+    pub refused: u16,
+}
+
+impl ProbeCoils {
+    /// The address of one of the three.
+    pub fn coil(&self, which: ProbeCoil) -> u16 {
+        match which {
+            ProbeCoil::Probe => self.probe,
+            ProbeCoil::Value => self.value,
+            ProbeCoil::Refused => self.refused,
+        }
+    }
+
+    fn coil_mut(&mut self, which: ProbeCoil) -> &mut u16 {
+        match which {
+            ProbeCoil::Probe => &mut self.probe,
+            ProbeCoil::Value => &mut self.value,
+            ProbeCoil::Refused => &mut self.refused,
+        }
     }
 }
 
@@ -342,7 +431,59 @@ impl Plant {
                 f.1 = e.address;
             }
         }
-        ModbusMap { signals, flags }
+        let probes = self.probe_coils(&signals, &flags);
+        ModbusMap {
+            signals,
+            flags,
+            probes,
+        }
+    }
+
+    /// Each actuator's probe coils: three in a row per actuator from
+    /// [`ModbusMap::PROBES_FROM`] (or past the highest signal or flag coil),
+    /// then the `[modbus]` entries.
+    fn probe_coils(
+        &self,
+        signals: &[(ModbusTable, u16)],
+        flags: &[(Flag, u16)],
+    ) -> Vec<ProbeCoils> {
+        let highest = signals
+            .iter()
+            .filter(|s| s.0 == ModbusTable::Coil)
+            .map(|s| s.1)
+            .chain(flags.iter().map(|f| f.1))
+            .max();
+        let from = highest.map_or(ModbusMap::PROBES_FROM, |h| {
+            ModbusMap::PROBES_FROM.max(h.saturating_add(1))
+        });
+        // Past the last address, coils saturate and clash: the parser says so.
+        let at = |k: usize, i: u32| {
+            u16::try_from(u32::from(from) + 3 * k as u32 + i).unwrap_or(u16::MAX)
+        };
+        let mut probes: Vec<ProbeCoils> = self
+            .signals
+            .of_kind(SignalKind::Actuator)
+            .enumerate()
+            .map(|(k, actuator)| ProbeCoils {
+                actuator,
+                probe: at(k, 0),
+                value: at(k, 1),
+                refused: at(k, 2),
+            })
+            .collect();
+        for e in &self.modbus {
+            let Some((actuator, which)) = ProbeCoil::parse(&e.name) else {
+                continue;
+            };
+            if self.signals.id(&e.name).is_some() {
+                continue;
+            }
+            let id = self.signals.id(actuator);
+            if let Some(p) = probes.iter_mut().find(|p| Some(p.actuator) == id) {
+                *p.coil_mut(which) = e.address;
+            }
+        }
+        probes
     }
 
     /// Names of all moving elements declared by parts.
@@ -904,11 +1045,22 @@ impl Checker<'_> {
         for (name, at) in raw {
             let n = name.get_ref();
             let signal = plant.signals.id(n);
-            if signal.is_none() && !Flag::parse(n).is_some_and(|f| flags.contains(&f)) {
+            let probe = ProbeCoil::parse(n)
+                .filter(|(a, _)| {
+                    plant
+                        .signals
+                        .id(a)
+                        .is_some_and(|id| plant.signals.get(id).kind == SignalKind::Actuator)
+                })
+                .map(|(_, which)| which);
+            if signal.is_none()
+                && probe.is_none()
+                && !Flag::parse(n).is_some_and(|f| flags.contains(&f))
+            {
                 return Err(self.at(
                     name.span(),
                     "modbus",
-                    format!("unknown signal or flag '{n}' (flags are def_<partition> and suspect_<partition>)"),
+                    format!("unknown signal, flag or probe coil '{n}' (flags are def_<partition> and suspect_<partition>; probe coils <actuator>_PROBE, <actuator>_PROBE_VALUE and <actuator>_PROBE_REFUSED)"),
                 ));
             }
             let (table, address) = match (at.get_ref().discrete_input, at.get_ref().coil) {
@@ -923,11 +1075,14 @@ impl Checker<'_> {
                 }
             };
             if signal.is_none() && table != ModbusTable::Coil {
-                return Err(self.at(
-                    at.span(),
-                    "modbus",
-                    format!("flag '{n}' must be a coil: the monitor writes it"),
-                ));
+                let what = match probe {
+                    Some(ProbeCoil::Refused) => {
+                        format!("probe coil '{n}' must be a coil: the PLC writes it")
+                    }
+                    Some(_) => format!("probe coil '{n}' must be a coil: the monitor writes it"),
+                    None => format!("flag '{n}' must be a coil: the monitor writes it"),
+                };
+                return Err(self.at(at.span(), "modbus", what));
             }
             if entries.iter().any(|e| e.name == *n) {
                 return Err(self.at(name.span(), "modbus", format!("'{n}' mapped twice")));
@@ -952,7 +1107,12 @@ impl Checker<'_> {
                 map.flags
                     .iter()
                     .map(|(f, a)| (f.to_string(), (ModbusTable::Coil, *a))),
-            );
+            )
+            .chain(map.probes.iter().flat_map(|p| {
+                let actuator = plant.signals.name(p.actuator);
+                ProbeCoil::ALL
+                    .map(|which| (which.name(actuator), (ModbusTable::Coil, p.coil(which))))
+            }));
         for (name, place) in named {
             if let Some(other) = taken.insert(place, name.clone()) {
                 // Point at whichever of the two the file wrote.

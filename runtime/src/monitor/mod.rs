@@ -23,10 +23,14 @@
 //! in the gap is unknown. Flags already raised stay raised and are written
 //! again. A `def_` flag goes up only once its verdict has held for
 //! [`Config::confirm`] beyond the watermark.
+//!
+//! With [`Config::probe`] (Modbus only), the monitor also makes probing moves
+//! where a part stays ambiguous while its control waits ([`probing`]).
 
 pub mod can;
 pub mod http;
 pub mod modbus;
+mod probing;
 pub mod source;
 pub mod status;
 pub mod stdin;
@@ -39,13 +43,15 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use diagnoser::diagnosis::{PlantDiagnoser, Verdict};
-use diagnoser::{Event, Failure, Plant, Time, TimeFormat};
+use diagnoser::{Event, Failure, Plant, SignalKind, Time, TimeFormat};
+use filter_coupling::filter::Filter;
 use logs::IngestOptions;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 
 use crate::flags::FlagBoard;
-use source::{FlagImage, Item, Link, Source};
+use probing::Probing;
+use source::{FlagImage, Item, Link, ProbeImage, Source};
 use status::Status;
 
 /// Where the monitor's events come from.
@@ -113,7 +119,15 @@ pub struct Config {
     pub speed: f64,
     /// Wall-clock time after which the monitor stops, if any.
     pub duration: Option<Duration>,
+    /// Probing moves (`--probe`, Modbus only): the copy of the PLC's filter,
+    /// built with the coupling the PLC uses, that every move is checked on.
+    /// `None`: the monitor never writes a probe coil.
+    pub probe: Option<Filter>,
 }
+
+/// How long a stopping monitor waits for the PLC to acknowledge the end of
+/// its probing move.
+const PROBE_CLEAR_WAIT: Duration = Duration::from_secs(2);
 
 /// Runs the monitor of `plant` with `diagnoser` (built with
 /// [`SourceConfig::polled`] as its `polled` option) until the source ends, a
@@ -122,6 +136,11 @@ pub struct Config {
 pub fn run(plant: Plant, diagnoser: PlantDiagnoser, config: Config) -> Result<(), Failure> {
     if !(config.speed.is_finite() && config.speed > 0.0) {
         return Err(Failure::bad("--speed: must be a positive number"));
+    }
+    if config.probe.is_some() && !matches!(config.source, SourceConfig::Modbus { .. }) {
+        return Err(Failure::bad(
+            "--probe needs --modbus HOST:PORT: probing moves are written to the PLC's probe coils",
+        ));
     }
     let output: Box<dyn Write> = match &config.output {
         Some(path) => Box::new(
@@ -160,6 +179,7 @@ type OpenSource = Box<dyn FnOnce() -> Result<(Box<dyn Source>, String), Failure>
 fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure> {
     let plant = plant.clone();
     let speed = config.speed;
+    let probing = config.probe.is_some();
     Ok(match config.source.clone() {
         SourceConfig::Replay { log } => {
             let replay = source::Replay::open(&log, &config.ingest, &plant)?;
@@ -167,7 +187,7 @@ fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure>
             Box::new(move || Ok((Box::new(replay) as Box<dyn Source>, name)))
         }
         SourceConfig::Modbus { address, unit_id } => Box::new(move || {
-            let s = modbus::ModbusSource::new(&address, unit_id, &plant, speed)?;
+            let s = modbus::ModbusSource::new(&address, unit_id, &plant, speed, probing)?;
             Ok((Box::new(s) as Box<dyn Source>, format!("modbus {address}")))
         }),
         SourceConfig::Can { interface } => Box::new(move || {
@@ -217,6 +237,8 @@ struct Outputs {
     status: Arc<Mutex<Status>>,
     flag_tx: watch::Sender<FlagImage>,
     plant: Plant,
+    /// Probing moves, with `--probe`.
+    probing: Option<Probing>,
     /// When the evidence of the verdicts being computed came: a scan's or a
     /// watermark's arrival, a replayed deadline's expiry (for the latency).
     evidence: Cell<Instant>,
@@ -238,11 +260,16 @@ impl Outputs {
             status,
             flag_tx,
             plant,
+            probing: None,
             evidence: Cell::new(Instant::now()),
         }
     }
 
-    fn emit(&mut self, v: Verdict) {
+    fn emit(&mut self, mut v: Verdict) {
+        // The verdict a probe led to says what the probe told.
+        if let Some(reason) = self.probing.as_mut().and_then(|p| p.verdict(&v)) {
+            v.reason = reason;
+        }
         self.writer.line(&v);
         let changed = self.board.update(&v);
         let Ok(mut s) = self.status.lock() else {
@@ -280,7 +307,11 @@ impl Outputs {
     /// The flags up now, to the status and to the PLC.
     fn publish_flags(&mut self) {
         self.status(|s| s.set_flags(self.board.raised(), self.board.suspects()));
-        let _ = self.flag_tx.send(self.board.image(&self.plant));
+        let image = self.board.image(&self.plant);
+        if let Some(p) = self.probing.as_mut() {
+            p.flags(&image);
+        }
+        let _ = self.flag_tx.send(image);
     }
 
     fn status(&self, f: impl FnOnce(&mut Status)) {
@@ -359,6 +390,9 @@ impl Run {
             );
         }
         self.diagnoser.start(t0, initial);
+        if let Some(p) = self.out.probing.as_mut() {
+            p.start(initial);
+        }
         self.anchor = Some((t0, Instant::now()));
         self.watermark = Some(t0);
         self.started = true;
@@ -401,11 +435,15 @@ impl Run {
         // Deadlines before this scan fire first.
         self.advance_to(t - 1);
         let n = scan.len() as u64;
+        if let Some(p) = self.out.probing.as_mut() {
+            p.changes(&scan);
+        }
         let out = &mut self.out;
         for e in scan {
             self.diagnoser.push(e, &mut |v| out.emit(v));
         }
         self.advance_to(t);
+        self.probe(t);
         self.watermark = Some(t);
         let took = arrived.elapsed();
         self.out.status(|s| {
@@ -423,14 +461,26 @@ impl Run {
         let arrived = Instant::now();
         self.out.evidence.set(arrived);
         self.advance_to(w);
+        self.probe(w);
         self.watermark = Some(w);
         let took = arrived.elapsed();
         self.out.status(|s| s.evidence.record(took));
     }
 
+    /// With `--probe`: the PLC as read at `t`, once the diagnosers are done
+    /// with it; a move may start only while the plant is observed.
+    fn probe(&mut self, t: Time) {
+        if let Some(p) = self.out.probing.as_mut() {
+            p.scan(t, &self.diagnoser, self.observed);
+        }
+    }
+
     fn lost(&mut self, t: Time, why: &str) {
         // The watermark stays: what happened since it is unknown.
         self.blind = true;
+        if let Some(p) = self.out.probing.as_mut() {
+            p.abandon("the source lost the plant");
+        }
         self.lost_at = Some(t);
         self.out.warn(&format!(
             "{why}; no deadline fires until the plant is seen again"
@@ -458,6 +508,9 @@ impl Run {
         if observed {
             eprintln!("monitor: plant observed again: the source caught up with the live clock");
         } else {
+            if let Some(p) = self.out.probing.as_mut() {
+                p.abandon("the plant is not observed");
+            }
             self.out.warn(&format!(
                 "plant not observed: the source has shown nothing after {} for {:.3} s; no deadline fires until it catches up",
                 self.out.writer.time.format(w),
@@ -517,6 +570,14 @@ impl Run {
                 }
                 self.out.status(|s| s.flag_writes += 1);
             }
+            Item::ProbesWritten(image) => {
+                if let Some(p) = self.out.probing.as_mut() {
+                    p.written(&image);
+                }
+            }
+            Item::ProbeRefused(actuator) => eprintln!(
+                "monitor: the PLC refused the probing move of {actuator} ({actuator}_PROBE_REFUSED): its filter forbids it there; the move stays asked for"
+            ),
             Item::Late(m) => {
                 self.out.warn(&m);
                 self.out.status(|s| s.late += 1);
@@ -560,12 +621,19 @@ async fn monitor(
         http::serve(addr, status.clone()).await?;
     }
     // Room for a replay to read well ahead of its pace.
-    let (tx, rx) = mpsc::channel::<Item>(16_384);
+    let (tx, mut rx) = mpsc::channel::<Item>(16_384);
     let (flag_tx, flag_rx) = watch::channel(vec![false; plant.flags().len()]);
+    let actuators = plant.signals.of_kind(SignalKind::Actuator).count();
+    let (probe_tx, probe_rx) = watch::channel::<ProbeImage>(vec![None; actuators]);
     source.spawn(Link {
         items: tx,
         flags: flag_rx,
+        probes: probe_rx,
     });
+    let probing = config
+        .probe
+        .clone()
+        .map(|filter| Probing::new(&plant, filter, probe_tx, time_format));
     let writer = Writer {
         out: output,
         terminal,
@@ -573,11 +641,38 @@ async fn monitor(
         error: None,
     };
     let confirmation = config.confirm.unwrap_or(plant.scan_period);
-    let out = Outputs::new(writer, confirmation, status, flag_tx, plant);
+    let mut out = Outputs::new(writer, confirmation, status, flag_tx, plant);
+    out.probing = probing;
     let mut run = Run::new(diagnoser, out, config.speed);
-    match event_loop(&mut run, rx, config, knows_ahead).await? {
+    let end = event_loop(&mut run, &mut rx, config, knows_ahead).await?;
+    end_probe(&mut run, &mut rx).await;
+    match end {
         End::Stopped(stopped) => finish(&mut run, stopped, knows_ahead),
         End::Closed => Ok(()),
+    }
+}
+
+/// With `--probe`, as the monitor stops: ends the probe under way and waits
+/// (at most [`PROBE_CLEAR_WAIT`]) for the PLC to acknowledge the end of any
+/// move it may hold. Items that come meanwhile are not read.
+async fn end_probe(run: &mut Run, rx: &mut mpsc::Receiver<Item>) {
+    let Some(p) = run.out.probing.as_mut() else {
+        return;
+    };
+    p.abandon("the monitor stops");
+    let until = Instant::now() + PROBE_CLEAR_WAIT;
+    while p.on_plc() {
+        match tokio::time::timeout_at(until, rx.recv()).await {
+            Ok(Some(Item::ProbesWritten(image))) => p.written(&image),
+            Ok(Some(_)) => {}
+            Ok(None) | Err(_) => {
+                eprintln!(
+                    "warning: the PLC did not acknowledge the end of the probing move within {} s: its _PROBE coil may still be 1",
+                    PROBE_CLEAR_WAIT.as_secs()
+                );
+                return;
+            }
+        }
     }
 }
 
@@ -587,7 +682,7 @@ async fn monitor(
 /// watermarks.
 async fn event_loop(
     run: &mut Run,
-    mut rx: mpsc::Receiver<Item>,
+    rx: &mut mpsc::Receiver<Item>,
     config: &Config,
     knows_ahead: bool,
 ) -> Result<End, Failure> {
@@ -971,6 +1066,7 @@ mod tests {
             output: None,
             speed: 1e4,
             duration: None,
+            probe: None,
         };
         let output = lines.clone();
         let (plant, diagnoser) = (f2.plant.clone(), f2.diagnoser.clone());

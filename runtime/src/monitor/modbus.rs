@@ -34,6 +34,14 @@
 //! values, so that no deadline in the gap fires and no edge is judged on a
 //! stamp it may not have had.
 //!
+//! With `--probe`, the source also writes the probe coils of the map
+//! ([`diagnoser::plant::ProbeCoil`]): on every (re)connection, every `_PROBE`
+//! coil to 0 (a move asked before a gap is never asked again); then, as the
+//! monitor's probing moves change, a move as `_PROBE_VALUE`, then `_PROBE` to
+//! 1, and its end as `_PROBE` to 0. While a move is written, each poll also
+//! reads its `_PROBE_REFUSED` coil. Without `--probe` it never writes a probe
+//! coil.
+//!
 //! The source runs on two threads of its own (one writes, one reads), paced by
 //! the operating system's clock: the runtime's timers tick by the millisecond,
 //! which at a high `--speed` would skip polls.
@@ -44,10 +52,10 @@ use std::net::{Shutdown, TcpStream, ToSocketAddrs};
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
 
-use diagnoser::plant::{ModbusMap, ModbusTable};
+use diagnoser::plant::{ModbusMap, ModbusTable, ProbeCoils};
 use diagnoser::{Event, Failure, Flag, FlagKind, Plant, SignalId, Time, TimeFormat};
 
-use super::source::{Item, Link, LiveClock, Source};
+use super::source::{Item, Link, LiveClock, ProbeImage, Source};
 /// Longest wait for a reply: a poll unanswered this long is skipped, and a
 /// link that answers nothing this long is lost.
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(3);
@@ -70,6 +78,9 @@ pub struct ModbusSource {
     map: ModbusMap,
     /// Flags in [`Plant::flags`] order with their coils.
     flags: Vec<(Flag, u16)>,
+    /// With `--probe`: each actuator, in plant-file order, with its probe
+    /// coils.
+    probes: Option<Vec<(String, ProbeCoils)>>,
     /// Wall time between polls.
     period: Duration,
     speed: f64,
@@ -85,8 +96,15 @@ struct Block {
 
 impl ModbusSource {
     /// A source polling `addr` (`HOST:PORT`) for unit `unit` with `plant`'s
-    /// register map. Nothing is connected yet.
-    pub fn new(addr: &str, unit: u8, plant: &Plant, speed: f64) -> Result<ModbusSource, Failure> {
+    /// register map, writing probe coils only if `probing`. Nothing is
+    /// connected yet.
+    pub fn new(
+        addr: &str,
+        unit: u8,
+        plant: &Plant,
+        speed: f64,
+        probing: bool,
+    ) -> Result<ModbusSource, Failure> {
         match addr.rsplit_once(':') {
             Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => {}
             _ => {
@@ -104,6 +122,12 @@ impl ModbusSource {
                 (f, coil)
             })
             .collect();
+        let probes = probing.then(|| {
+            map.probes
+                .iter()
+                .map(|p| (plant.signals.name(p.actuator).to_string(), *p))
+                .collect()
+        });
         // Twice per scan: polls are not in step with the PLC's scans, and one
         // poll per scan would now and then miss a scan and see the edges of two
         // scans as one (an order and its sensor's answer at once).
@@ -113,6 +137,7 @@ impl ModbusSource {
             unit,
             map,
             flags,
+            probes,
             period: period.max(Duration::from_micros(100)),
             speed,
         })
@@ -202,6 +227,10 @@ fn run(source: ModbusSource, mut link: Link) {
         connected_once = true;
         let mut session = Session::new(&source, &clock, stream, &mut backoff);
         let ended = session.run(&mut link, &mut adopted);
+        if matches!(ended, Ended::Refused(_)) {
+            // The monitor stops on a wrong map: no move stays asked for.
+            session.drop_probes();
+        }
         session.close();
         match ended {
             Ended::Gone => return,
@@ -260,6 +289,10 @@ enum Awaited {
     FlagRead,
     /// The write of a flag, in batch `batch`.
     FlagWrite { batch: u64 },
+    /// The write of a probe coil, in batch `batch`.
+    ProbeWrite { batch: u64 },
+    /// The `_PROBE_REFUSED` coil of the actuator `index` (in plant-file order).
+    ProbeRefused { index: usize },
 }
 
 /// A poll sent, waiting for its replies.
@@ -298,6 +331,13 @@ struct Session<'a> {
     /// Flag write batches: replies still awaited, flags written up.
     batches: HashMap<u64, (usize, Vec<String>)>,
     next_batch: u64,
+    /// Per actuator with probe coils: the move last written on this
+    /// connection.
+    probes_written: Vec<Option<bool>>,
+    /// Probe write batches: replies still awaited, the moves written.
+    probe_batches: HashMap<u64, (usize, ProbeImage)>,
+    /// Per actuator: whether the refusal of its move was told.
+    refusal_told: Vec<bool>,
     /// Polls skipped on this connection.
     skipped: u64,
     /// Time of the last poll delivered.
@@ -333,6 +373,9 @@ impl<'a> Session<'a> {
             written: vec![None; source.flags.len()],
             batches: HashMap::new(),
             next_batch: 0,
+            probes_written: Vec::new(),
+            probe_batches: HashMap::new(),
+            refusal_told: Vec::new(),
             skipped: 0,
             last_t: None,
         }
@@ -359,6 +402,9 @@ impl<'a> Session<'a> {
         if let Err(e) = self.write_flags(link, adopted) {
             return e;
         }
+        if let Err(e) = self.clear_probes(link) {
+            return e;
+        }
         let mut next = Instant::now();
         loop {
             match link.flags.has_changed() {
@@ -369,6 +415,17 @@ impl<'a> Session<'a> {
                     }
                 }
                 Ok(false) => {}
+            }
+            if self.source.probes.is_some() {
+                match link.probes.has_changed() {
+                    Err(_) => return Ended::Gone,
+                    Ok(true) => {
+                        if let Err(e) = self.write_probes(link) {
+                            return e;
+                        }
+                    }
+                    Ok(false) => {}
+                }
             }
             let now = Instant::now();
             if now >= next {
@@ -431,7 +488,7 @@ impl<'a> Session<'a> {
             let [ch, cl] = b.count.to_be_bytes();
             self.request(&[code, ah, al, ch, cl], Awaited::Poll { seq, block })?;
         }
-        Ok(())
+        self.ask_refusals()
     }
 
     /// Takes in one reply.
@@ -462,6 +519,16 @@ impl<'a> Session<'a> {
                 let coil = "writing a flag coil";
                 check_echo(&pdu).map_err(|e| self.trouble(coil, e))?;
                 self.flag_written(batch, link)?;
+            }
+            Awaited::ProbeWrite { batch } => {
+                let coil = "writing a probe coil";
+                check_echo(&pdu).map_err(|e| self.trouble(coil, e))?;
+                self.probe_written(batch, link)?;
+            }
+            Awaited::ProbeRefused { index } => {
+                let what = "reading a _PROBE_REFUSED coil";
+                let bits = read_bits(&pdu, 1).map_err(|e| self.trouble(what, e))?;
+                self.refusal_read(index, bits.first().copied().unwrap_or(false), link)?;
             }
         }
         Ok(())
@@ -726,6 +793,143 @@ impl<'a> Session<'a> {
         let (_, up) = self.batches.remove(&batch).unwrap_or_default();
         link.items
             .blocking_send(Item::FlagsWritten(up))
+            .map_err(|_| Ended::Gone)
+    }
+
+    /// Sends one write of a coil (function 5).
+    fn write_coil(&mut self, coil: u16, up: bool, awaited: Awaited) -> Result<(), Ended> {
+        let [ah, al] = coil.to_be_bytes();
+        let value = if up { 0xFF } else { 0x00 };
+        self.request(&[5, ah, al, value, 0], awaited)
+    }
+
+    /// On connecting, with `--probe`: every `_PROBE` coil to 0. A move the
+    /// monitor asked before is not asked again: it was meant for verdicts
+    /// that a gap has made stale, and the monitor ends it when it hears of
+    /// the gap. What it asks from now on is written as it changes.
+    fn clear_probes(&mut self, link: &mut Link) -> Result<(), Ended> {
+        let source = self.source;
+        let Some(probes) = &source.probes else {
+            return Ok(());
+        };
+        link.probes.borrow_and_update();
+        let batch = self.next_batch;
+        self.next_batch += 1;
+        for (_, coils) in probes {
+            self.write_coil(coils.probe, false, Awaited::ProbeWrite { batch })?;
+        }
+        self.probes_written = vec![None; probes.len()];
+        self.refusal_told = vec![false; probes.len()];
+        self.probe_batches
+            .insert(batch, (probes.len(), self.probes_written.clone()));
+        Ok(())
+    }
+
+    /// Writes the probing moves that changed: a move ending as `_PROBE` to
+    /// 0, a new one as its value, then `_PROBE` to 1, so that the PLC never
+    /// reads `_PROBE` at 1 with another move's value.
+    fn write_probes(&mut self, link: &mut Link) -> Result<(), Ended> {
+        let source = self.source;
+        let Some(probes) = &source.probes else {
+            return Ok(());
+        };
+        let image = link.probes.borrow_and_update().clone();
+        let batch = self.next_batch;
+        let mut count = 0;
+        for (i, (_, coils)) in probes.iter().enumerate() {
+            let want = image.get(i).copied().flatten();
+            let had = self.probes_written.get(i).copied().flatten();
+            if want == had {
+                continue;
+            }
+            let awaited = Awaited::ProbeWrite { batch };
+            if had.is_some() {
+                self.write_coil(coils.probe, false, awaited)?;
+                count += 1;
+            }
+            if let Some(value) = want {
+                self.write_coil(coils.value, value, awaited)?;
+                self.write_coil(coils.probe, true, awaited)?;
+                count += 2;
+            }
+            if let Some(w) = self.probes_written.get_mut(i) {
+                *w = want;
+            }
+            if let Some(told) = self.refusal_told.get_mut(i) {
+                *told = false;
+            }
+        }
+        if count > 0 {
+            self.probe_batches
+                .insert(batch, (count, self.probes_written.clone()));
+            self.next_batch += 1;
+        }
+        Ok(())
+    }
+
+    /// One write of a probe batch acknowledged; the moves it leaves on the
+    /// PLC are reported once all are.
+    fn probe_written(&mut self, batch: u64, link: &mut Link) -> Result<(), Ended> {
+        let Some(b) = self.probe_batches.get_mut(&batch) else {
+            return Ok(());
+        };
+        b.0 -= 1;
+        if b.0 > 0 {
+            return Ok(());
+        }
+        let (_, image) = self.probe_batches.remove(&batch).unwrap_or_default();
+        link.items
+            .blocking_send(Item::ProbesWritten(image))
+            .map_err(|_| Ended::Gone)
+    }
+
+    /// Writes `_PROBE` to 0 where a move was written, without waiting for
+    /// the replies: the connection is being closed.
+    fn drop_probes(&mut self) {
+        let source = self.source;
+        let Some(probes) = &source.probes else {
+            return;
+        };
+        for (i, (_, coils)) in probes.iter().enumerate() {
+            if self.probes_written.get(i).copied().flatten().is_some() {
+                let batch = u64::MAX;
+                let _ = self.write_coil(coils.probe, false, Awaited::ProbeWrite { batch });
+            }
+        }
+    }
+
+    /// Reads the `_PROBE_REFUSED` coil of every move written.
+    fn ask_refusals(&mut self) -> Result<(), Ended> {
+        let source = self.source;
+        let Some(probes) = &source.probes else {
+            return Ok(());
+        };
+        for (index, (_, coils)) in probes.iter().enumerate() {
+            if self.probes_written.get(index).copied().flatten().is_some() {
+                let [ah, al] = coils.refused.to_be_bytes();
+                self.request(&[1, ah, al, 0, 1], Awaited::ProbeRefused { index })?;
+            }
+        }
+        Ok(())
+    }
+
+    /// A `_PROBE_REFUSED` coil read: a refusal of the move under way is told
+    /// once.
+    fn refusal_read(&mut self, index: usize, refused: bool, link: &mut Link) -> Result<(), Ended> {
+        let up = self.probes_written.get(index).copied().flatten().is_some();
+        let Some(told) = self.refusal_told.get_mut(index) else {
+            return Ok(());
+        };
+        if !refused || !up || *told {
+            return Ok(());
+        }
+        *told = true;
+        let name = self.source.probes.as_ref().and_then(|p| p.get(index));
+        let Some((actuator, _)) = name else {
+            return Ok(());
+        };
+        link.items
+            .blocking_send(Item::ProbeRefused(actuator.clone()))
             .map_err(|_| Ended::Gone)
     }
 }

@@ -1,6 +1,6 @@
 //! Where the monitor's events come from. Every source runs as its own task and
 //! sends [`Item`]s over a channel; sources that can write to the PLC (Modbus)
-//! also receive the flags to write back.
+//! also receive the flags to write back, and with `--probe` the probing moves.
 //!
 //! Live sources work in event time: each scan carries the time the plant was
 //! seen, and [`Item::Watermark`] says up to when the source's view is
@@ -41,6 +41,13 @@ pub enum Item {
     FoundRaised(Vec<String>),
     /// Flag coils were written to the PLC; these are the flags written up.
     FlagsWritten(Vec<String>),
+    /// Probe coils were written to the PLC and acknowledged: the probing
+    /// moves they now ask for.
+    ProbesWritten(ProbeImage),
+    /// The PLC's filter refused the probing move of this actuator in a scan
+    /// (its `_PROBE_REFUSED` coil read 1): a safety constraint forbids it
+    /// there. Said once per move.
+    ProbeRefused(String),
     /// A problem that does not stop the monitor.
     Warning(String),
     /// A problem that does.
@@ -51,12 +58,19 @@ pub enum Item {
 /// [`Plant::flags`] order, up or down.
 pub type FlagImage = Vec<bool>;
 
+/// The probing moves to write to the PLC (`--probe`): per actuator of the
+/// plant, in plant-file order, the value asked for, or `None` (no move: its
+/// `_PROBE` coil at 0).
+pub type ProbeImage = Vec<Option<bool>>;
+
 /// A source's ends of the channels to the monitor.
 pub struct Link {
     /// Items to the monitor.
     pub items: mpsc::Sender<Item>,
     /// The flags to write back; changes whenever one goes up or down.
     pub flags: watch::Receiver<FlagImage>,
+    /// The probing moves to write (read only by a source that probes).
+    pub probes: watch::Receiver<ProbeImage>,
 }
 
 /// A source of events.

@@ -3,13 +3,18 @@
 //! filter, with its process image served over Modbus TCP.
 //!
 //! Clients read the sensors (discrete inputs) and the orders (coils), and write
-//! the fault flags (coils) that the filter reads from the next scan on. The
-//! register map is the plant's [`ModbusMap`]:
+//! the fault flags (coils) that the filter reads from the next scan on, and
+//! the probe coils of a probing move (`monitor --probe`): while `<A>_PROBE` is
+//! 1, the filter is asked for A at `<A>_PROBE_VALUE` ([`Filter::request`]) and
+//! takes it in each scan where no safety constraint forbids it; the scan sets
+//! `<A>_PROBE_REFUSED` where one did. The register map is the plant's
+//! [`ModbusMap`]:
 //!
 //! - function 1 reads coils and function 2 discrete inputs;
-//! - functions 5 and 15 write flag coils only: writing an actuator's coil, or
-//!   any address that holds no flag, gives the exception IllegalDataAddress and
-//!   writes nothing;
+//! - functions 5 and 15 write flag coils and the `_PROBE` and `_PROBE_VALUE`
+//!   coils only: writing an actuator's coil, a `_PROBE_REFUSED` coil, or any
+//!   address that holds none of those, gives the exception IllegalDataAddress
+//!   and writes nothing;
 //! - a read reaching past the highest mapped address of its table gives
 //!   IllegalDataAddress; unmapped addresses below it read 0;
 //! - a quantity of 0 or above the protocol's limit gives IllegalDataValue;
@@ -32,14 +37,14 @@ use datasets::sim::{Damage, SimConfig, Stepper};
 use diagnoser::model::Model;
 use diagnoser::plant::{ModbusMap, ModbusTable};
 use diagnoser::{Failure, MS, Plant, Time};
-use filter_coupling::filter::{Coupling, Filter};
+use filter_coupling::filter::{Coupling, Filter, Request as FilterRequest};
 use serde::Serialize;
 use tokio::net::{TcpListener, TcpStream};
 use tokio_modbus::server::Service;
 use tokio_modbus::server::tcp::Server;
 use tokio_modbus::{ExceptionCode, Request, Response};
 
-use crate::closed_loop::{CoupledPlc, Watched};
+use crate::closed_loop::{CoupledPlc, Rig, Watched};
 /// Most coils or discrete inputs one read may ask for (Modbus application
 /// protocol, functions 1 and 2).
 const MAX_READ: u16 = 2000;
@@ -70,6 +75,11 @@ enum Cell {
     Signal,
     /// A flag: written by clients, read by the filter.
     Flag,
+    /// `<A>_PROBE` or `<A>_PROBE_VALUE`: written by clients, read by the
+    /// scan loop.
+    Probe,
+    /// `<A>_PROBE_REFUSED`: set by the scan loop, read-only for clients.
+    ProbeRefused,
 }
 
 /// One Modbus bit table: a value and a use per address.
@@ -111,14 +121,20 @@ impl Table {
         Ok(self.values[range].to_vec())
     }
 
-    /// Writes flags; nothing is written unless every address holds a flag.
-    fn write_flags(&mut self, address: u16, values: &[bool]) -> Result<(), ExceptionCode> {
+    /// Writes flags and probe coils; nothing is written unless every address
+    /// holds one. True if a probe coil was written.
+    fn write_flags(&mut self, address: u16, values: &[bool]) -> Result<bool, ExceptionCode> {
         let range = self.range(address, values.len())?;
-        if self.cells[range.clone()].iter().any(|&c| c != Cell::Flag) {
+        let cells = &self.cells[range.clone()];
+        if cells
+            .iter()
+            .any(|&c| !matches!(c, Cell::Flag | Cell::Probe))
+        {
             return Err(ExceptionCode::IllegalDataAddress);
         }
+        let probe = cells.contains(&Cell::Probe);
         self.values[range].copy_from_slice(values);
-        Ok(())
+        Ok(probe)
     }
 }
 
@@ -127,6 +143,9 @@ impl Table {
 struct Image {
     inputs: Table,
     coils: Table,
+    /// Client writes that reached a probe coil (for the summary: a monitor
+    /// without `--probe` never writes one).
+    probe_writes: u64,
 }
 
 impl Image {
@@ -138,7 +157,19 @@ impl Image {
         for (_, address) in &map.flags {
             image.coils.put(*address, Cell::Flag);
         }
+        for p in &map.probes {
+            image.coils.put(p.probe, Cell::Probe);
+            image.coils.put(p.value, Cell::Probe);
+            image.coils.put(p.refused, Cell::ProbeRefused);
+        }
         image
+    }
+
+    /// Writes client coils, counting the writes of probe coils.
+    fn write_coils(&mut self, address: u16, values: &[bool]) -> Result<(), ExceptionCode> {
+        let probe = self.coils.write_flags(address, values)?;
+        self.probe_writes += u64::from(probe);
+        Ok(())
     }
 
     fn table_mut(&mut self, table: ModbusTable) -> &mut Table {
@@ -159,16 +190,14 @@ impl Image {
                 .read(address, quantity)
                 .map(Response::ReadDiscreteInputs),
             Request::WriteSingleCoil(address, value) => self
-                .coils
-                .write_flags(address, &[value])
+                .write_coils(address, &[value])
                 .map(|()| Response::WriteSingleCoil(address, value)),
             Request::WriteMultipleCoils(address, values) => {
                 let quantity = u16::try_from(values.len())
                     .ok()
                     .filter(|&n| n > 0 && n <= MAX_WRITE)
                     .ok_or(ExceptionCode::IllegalDataValue)?;
-                self.coils
-                    .write_flags(address, &values)
+                self.write_coils(address, &values)
                     .map(|()| Response::WriteMultipleCoils(address, quantity))
             }
             _ => Err(ExceptionCode::IllegalFunction),
@@ -240,6 +269,13 @@ struct Summary {
     /// Flags in the order first seen raised, with the scan that first read them.
     flags: Vec<(String, Time)>,
     fallback_scans: u64,
+    /// Client writes that reached a probe coil.
+    probe_writes: u64,
+    /// Probing moves asked for (an `_PROBE` coil read at 1, or a new value
+    /// while it is).
+    probe_requests: u64,
+    /// Scans in which the filter refused a requested move.
+    probe_refused_scans: u64,
     late_scans: u64,
     /// The latest a scan came, in simulated time: how far the plant fell
     /// behind real time at worst (a loaded machine).
@@ -252,6 +288,78 @@ struct FlagCoil {
     name: String,
     coil: usize,
     applied: bool,
+}
+
+/// One actuator's probe coils as the scan loop reads and sets them.
+struct ProbeCoilState {
+    actuator: String,
+    probe: usize,
+    value: usize,
+    refused: usize,
+    /// What the filter has been asked for.
+    requested: Option<bool>,
+}
+
+/// The probing moves clients ask for, and what the filter did with them.
+struct Probes {
+    coils: Vec<ProbeCoilState>,
+    requests: u64,
+    refused_scans: u64,
+}
+
+impl Probes {
+    fn new(plant: &Plant, map: &ModbusMap) -> Probes {
+        let coils = map
+            .probes
+            .iter()
+            .map(|p| ProbeCoilState {
+                actuator: plant.signals.name(p.actuator).to_string(),
+                probe: usize::from(p.probe),
+                value: usize::from(p.value),
+                refused: usize::from(p.refused),
+                requested: None,
+            })
+            .collect();
+        Probes {
+            coils,
+            requests: 0,
+            refused_scans: 0,
+        }
+    }
+
+    /// Asks the filter for the moves the coils request now, from this scan
+    /// on: `A` at `A_PROBE_VALUE` while `A_PROBE` is 1, and the control's
+    /// order again once it is 0.
+    fn read(&mut self, image: &Image, plc: &mut CoupledPlc) {
+        let bit = |a: usize| image.coils.values.get(a).copied().unwrap_or(false);
+        for p in &mut self.coils {
+            let want = bit(p.probe).then(|| bit(p.value));
+            if want != p.requested {
+                // The filter keeps a request until told otherwise: asking
+                // only on a change is asking in every scan.
+                plc.filter_mut().request(&p.actuator, want);
+                self.requests += u64::from(want.is_some());
+                p.requested = want;
+            }
+        }
+    }
+
+    /// Sets each `A_PROBE_REFUSED` from what the scan just made of the
+    /// requests.
+    fn write(&mut self, image: &mut Image, plc: &CoupledPlc) {
+        let mut any = false;
+        for p in &self.coils {
+            let refused = plc
+                .last_requests()
+                .iter()
+                .any(|(a, r)| *a == p.actuator && matches!(r, FilterRequest::Refused(_)));
+            any |= refused;
+            if let Some(v) = image.coils.values.get_mut(p.refused) {
+                *v = refused;
+            }
+        }
+        self.refused_scans += u64::from(any);
+    }
 }
 
 /// Runs the scans until the end of the run or a message on `stop`.
@@ -277,8 +385,9 @@ fn scan_loop(
     for f in &flags {
         filter.set(&f.name, false);
     }
+    let mut probes = Probes::new(plant, &map);
     let mut plc = CoupledPlc::new(filter, None, 0);
-    let mut physics = Watched::new(0);
+    let mut physics = Watched::new(Rig::Sorting, 0);
     let mut stepper = Stepper::new(plant, config);
     let period_s = config.scan_period.max(1) as f64 / 1e9 / speed;
     let period = Duration::try_from_secs_f64(period_s).unwrap_or(Duration::MAX);
@@ -329,6 +438,7 @@ fn scan_loop(
                     }
                 }
             }
+            probes.read(&image, &mut plc);
         }
         let Some((t, values)) = stepper
             .step(&mut physics, &mut plc)
@@ -345,6 +455,7 @@ fn scan_loop(
                     *v = value;
                 }
             }
+            probes.write(&mut image, &plc);
         }
     }
     Ok(Summary {
@@ -357,6 +468,9 @@ fn scan_loop(
         fallback_scans: plc.fallback_scans(),
         late_scans,
         most_late: (most_late.as_secs_f64() * speed * 1e9) as Time,
+        probe_writes: lock(image).probe_writes,
+        probe_requests: probes.requests,
+        probe_refused_scans: probes.refused_scans,
         interrupted,
     })
 }
@@ -439,16 +553,21 @@ fn describe_map(plant: &Plant, map: &ModbusMap) -> String {
             _ => "none".to_string(),
         }
     };
-    let flags = match (
-        map.flags.iter().map(|f| f.1).min(),
-        map.flags.iter().map(|f| f.1).max(),
-    ) {
-        (Some(lo), Some(hi)) => format!("{lo}-{hi}"),
-        _ => "none".to_string(),
-    };
+    fn range(coils: impl Iterator<Item = u16> + Clone) -> String {
+        match (coils.clone().min(), coils.max()) {
+            (Some(lo), Some(hi)) => format!("{lo}-{hi}"),
+            _ => "none".to_string(),
+        }
+    }
+    let flags = range(map.flags.iter().map(|f| f.1));
+    let probes = range(
+        map.probes
+            .iter()
+            .flat_map(|p| [p.probe, p.value, p.refused]),
+    );
     use diagnoser::SignalKind::{Actuator, Sensor};
     format!(
-        "sensors: discrete inputs {}, actuators: read-only coils {}, flags: coils {flags}",
+        "sensors: discrete inputs {}, actuators: read-only coils {}, flags: coils {flags}, probes: coils {probes}",
         span(ModbusTable::DiscreteInput, Sensor),
         span(ModbusTable::Coil, Actuator),
     )
@@ -464,6 +583,9 @@ fn print_summary(summary: &Summary) -> Result<(), Failure> {
         damage: Vec<DamageLine<'a>>,
         flags: Vec<FlagLine<'a>>,
         fallback_scans: u64,
+        probe_writes: u64,
+        probe_requests: u64,
+        probe_refused_scans: u64,
         late_scans: u64,
         most_late_ms: f64,
         interrupted: bool,
@@ -496,6 +618,9 @@ fn print_summary(summary: &Summary) -> Result<(), Failure> {
             .map(|(flag, t)| FlagLine { flag, t_ms: t / MS })
             .collect(),
         fallback_scans: summary.fallback_scans,
+        probe_writes: summary.probe_writes,
+        probe_requests: summary.probe_requests,
+        probe_refused_scans: summary.probe_refused_scans,
         late_scans: summary.late_scans,
         most_late_ms: summary.most_late as f64 / 1e6,
         interrupted: summary.interrupted,
@@ -508,7 +633,7 @@ fn print_summary(summary: &Summary) -> Result<(), Failure> {
         .map(|(f, t)| format!("{f} at {} s", *t as f64 / 1e9))
         .collect();
     eprintln!(
-        "virtual PLC: {} after {} scans ({} s simulated): {} boxes delivered, {} damage event(s), flags raised: {}, {} fallback scans, {} late scans",
+        "virtual PLC: {} after {} scans ({} s simulated): {} boxes delivered, {} damage event(s), flags raised: {}, {} fallback scans, {} probing move(s) requested ({} scans refused), {} late scans",
         if summary.interrupted {
             "interrupted"
         } else {
@@ -524,6 +649,8 @@ fn print_summary(summary: &Summary) -> Result<(), Failure> {
             flags.join(", ")
         },
         summary.fallback_scans,
+        summary.probe_requests,
+        summary.probe_refused_scans,
         summary.late_scans
     );
     use std::io::Write;
@@ -636,5 +763,32 @@ mod tests {
             Ok(Response::WriteMultipleCoils(101, 2))
         );
         assert_eq!(&image.coils.values[100..104], &[true, true, true, false]);
+        assert_eq!(image.probe_writes, 0);
+    }
+
+    #[test]
+    fn clients_write_probe_coils_but_not_the_refusals() {
+        let mut image = image();
+        // A4 is the fifth actuator: A4_PROBE 212, A4_PROBE_VALUE 213,
+        // A4_PROBE_REFUSED 214.
+        assert_eq!(
+            image.answer(Request::WriteMultipleCoils(212, vec![true, true].into())),
+            Ok(Response::WriteMultipleCoils(212, 2))
+        );
+        assert_eq!(&image.coils.values[212..214], &[true, true]);
+        assert_eq!(image.probe_writes, 1);
+        for refused in [214, 202] {
+            assert_eq!(
+                image.answer(Request::WriteSingleCoil(refused, false)),
+                Err(ExceptionCode::IllegalDataAddress)
+            );
+        }
+        assert_eq!(
+            image.answer(Request::ReadCoils(200, 21)),
+            Ok(Response::ReadCoils(
+                (200..221).map(|a| a == 212 || a == 213).collect()
+            ))
+        );
+        assert_eq!(image.probe_writes, 1);
     }
 }

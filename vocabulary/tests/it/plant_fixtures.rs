@@ -156,6 +156,76 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
         assert_eq!(*coil, want, "{name}");
     }
     assert_eq!(map.flag(&vocabulary::Flag::suspect("C4")), Some(200));
+    // Probe coils: past the highest flag coil (200 here), one moved.
+    let a4 = plant.signals.id("A4").expect("A4");
+    let probe = map.probe(a4).expect("A4's probe coils");
+    assert_eq!((probe.probe, probe.value, probe.refused), (201, 300, 203));
+}
+
+#[test]
+fn each_actuator_has_three_probe_coils_from_200_and_clashes_are_refused() {
+    use vocabulary::plant::{ModbusMap, ProbeCoil};
+    let text = |modbus: &str| {
+        format!(
+            "name = \"p\"\n[signals]\nC1 = {{ kind = \"sensor\" }}\nA1 = {{ kind = \"actuator\" }}\n\
+             A2 = {{ kind = \"actuator\" }}\n[[parts]]\nname = \"x\"\nactuators = [\"A1\", \"A2\"]\n\
+             sensors = [\"C1\"]\n[modbus]\n{modbus}"
+        )
+    };
+    let plant = Plant::parse(&text(""), Path::new("p.toml")).expect("parses");
+    let map = plant.modbus_map();
+    let coils: Vec<(String, u16)> = map
+        .probes
+        .iter()
+        .flat_map(|p| {
+            let a = plant.signals.name(p.actuator).to_string();
+            ProbeCoil::ALL.map(|c| (c.name(&a), p.coil(c)))
+        })
+        .collect();
+    let want = [
+        "A1_PROBE",
+        "A1_PROBE_VALUE",
+        "A1_PROBE_REFUSED",
+        "A2_PROBE",
+        "A2_PROBE_VALUE",
+        "A2_PROBE_REFUSED",
+    ];
+    let from = ModbusMap::PROBES_FROM;
+    assert_eq!(
+        coils,
+        want.iter()
+            .zip(from..)
+            .map(|(n, a)| (n.to_string(), a))
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(
+        ProbeCoil::parse("A2_PROBE_REFUSED"),
+        Some(("A2", ProbeCoil::Refused))
+    );
+
+    let moved =
+        Plant::parse(&text("A2_PROBE = { coil = 300 }\n"), Path::new("p.toml")).expect("parses");
+    let a2 = moved.signals.id("A2").expect("A2");
+    let p = *moved.modbus_map().probe(a2).expect("A2's coils");
+    assert_eq!((p.probe, p.value, p.refused), (300, from + 4, from + 5));
+
+    for (entry, message) in [
+        (
+            "A2_PROBE = { coil = 200 }\n",
+            "p.toml:11:1: field 'modbus': 'A1_PROBE' and 'A2_PROBE' are both at coil 200; give one of them another address",
+        ),
+        (
+            "A1_PROBE_REFUSED = { coil = 1 }\n",
+            "p.toml:11:1: field 'modbus': 'A2' and 'A1_PROBE_REFUSED' are both at coil 1; give one of them another address",
+        ),
+        (
+            "A1_PROBE = { discrete_input = 0 }\n",
+            "p.toml:11:12: field 'modbus': probe coil 'A1_PROBE' must be a coil: the monitor writes it",
+        ),
+    ] {
+        let e = Plant::parse(&text(entry), Path::new("p.toml")).expect_err(entry);
+        assert_eq!(e.to_string(), message, "{entry}");
+    }
 }
 
 #[test]
