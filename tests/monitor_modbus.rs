@@ -857,6 +857,8 @@ fn probe_the_reversible_line() -> Result<(), f64> {
         err.contains("monitor: probe of turntable ended at"),
         "{err}"
     );
+    // The count `/status` and `/metrics` give, in the summary at the end.
+    assert!(err.contains(", 1 probing move(s); flags:"), "{err}");
     let summary = stop_plc(&mut plc);
     assert_eq!(summary["probe_requests"], 1, "{summary}");
     assert_eq!(summary["damage"], serde_json::json!([]), "{summary}");

@@ -633,7 +633,7 @@ async fn monitor(
     let probing = config
         .probe
         .clone()
-        .map(|filter| Probing::new(&plant, filter, probe_tx, time_format));
+        .map(|filter| Probing::new(&plant, filter, probe_tx, time_format, status.clone()));
     let writer = Writer {
         out: output,
         terminal,
@@ -769,7 +769,7 @@ fn finish(run: &mut Run, stopped: Option<&str>, knows_ahead: bool) -> Result<(),
             flags.push(f);
         }
     }
-    let (events, lines, warnings, labels, evidence) = run
+    let (events, lines, warnings, probes, labels, evidence) = run
         .out
         .status
         .lock()
@@ -778,13 +778,18 @@ fn finish(run: &mut Run, stopped: Option<&str>, knows_ahead: bool) -> Result<(),
                 s.events,
                 s.verdict_changes,
                 s.warnings,
+                s.probes,
                 s.latency.clone(),
                 s.evidence.clone(),
             )
         })
         .unwrap_or_default();
+    let probes = match &run.out.probing {
+        Some(_) => format!(", {probes} probing move(s)"),
+        None => String::new(),
+    };
     eprintln!(
-        "monitor {}: {events} events, {lines} verdict changes, {warnings} warnings; flags: {}",
+        "monitor {}: {events} events, {lines} verdict changes, {warnings} warnings{probes}; flags: {}",
         stopped.unwrap_or("source ended"),
         if flags.is_empty() {
             "none".to_string()

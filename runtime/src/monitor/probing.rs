@@ -15,11 +15,14 @@
 
 use diagnoser::diagnosis::fusion::PLANT_VIEW;
 use diagnoser::diagnosis::{PlantDiagnoser, Verdict};
+use std::sync::{Arc, Mutex};
+
 use diagnoser::{Event, Plant, SignalKind, Time, TimeFormat};
 use filter_coupling::filter::{Filter, Mode};
 use tokio::sync::watch;
 
 use super::source::{FlagImage, ProbeImage};
+use super::status::Status;
 use crate::probe::Prober;
 
 /// Probing beside the PLC: the filter's copy, the prober, and what goes to
@@ -45,16 +48,19 @@ pub(super) struct Probing {
     /// How many of the prober's reasons for no probe were said.
     said: usize,
     time: TimeFormat,
+    /// Where `/status` and `/metrics` read the move under way.
+    status: Arc<Mutex<Status>>,
 }
 
 impl Probing {
     /// Probing on `plant` with `filter`, the copy of the PLC's; the moves
-    /// go to `tx`, times are printed in `time`.
+    /// go to `tx` and to `status`, times are printed in `time`.
     pub(super) fn new(
         plant: &Plant,
         filter: Filter,
         tx: watch::Sender<ProbeImage>,
         time: TimeFormat,
+        status: Arc<Mutex<Status>>,
     ) -> Probing {
         let actuators = plant
             .signals
@@ -73,6 +79,7 @@ impl Probing {
             on_plc: false,
             said: 0,
             time,
+            status,
         }
     }
 
@@ -205,5 +212,10 @@ impl Probing {
             .collect();
         self.on_plc |= image.iter().any(Option::is_some);
         self.tx.send_replace(image);
+        if let Ok(mut s) = self.status.lock() {
+            let now = active.map(|p| p.describe());
+            s.probes += u64::from(now.is_some() && s.probe != now);
+            s.probe = now;
+        }
     }
 }

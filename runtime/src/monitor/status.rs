@@ -140,6 +140,11 @@ pub struct Status {
     pub far_ahead: u64,
     /// Flag images written to the PLC.
     pub flag_writes: u64,
+    /// The probing move under way (`--probe`), as its verdict's reason will
+    /// begin: `released A4 to tell F3, F11 apart`.
+    pub probe: Option<String>,
+    /// Probing moves made.
+    pub probes: u64,
     /// From evidence to a changed verdict written: the label latency.
     #[serde(skip)]
     pub latency: Latency,
@@ -201,6 +206,8 @@ impl Status {
             late: 0,
             far_ahead: 0,
             flag_writes: 0,
+            probe: None,
+            probes: 0,
             latency: Latency::default(),
             evidence: Latency::default(),
             time,
@@ -271,6 +278,7 @@ impl Status {
             "Flag images written to the PLC.",
             self.flag_writes,
         );
+        counter("probes_total", "Probing moves made.", self.probes);
         let _ = writeln!(
             m,
             "# HELP gardefou_connected Whether the source sees the plant."
@@ -283,6 +291,12 @@ impl Status {
         );
         let _ = writeln!(m, "# TYPE gardefou_observed gauge");
         let _ = writeln!(m, "gardefou_observed {}", u8::from(self.observed));
+        let _ = writeln!(
+            m,
+            "# HELP gardefou_probing Whether a probing move is under way."
+        );
+        let _ = writeln!(m, "# TYPE gardefou_probing gauge");
+        let _ = writeln!(m, "gardefou_probing {}", u8::from(self.probe.is_some()));
         let _ = writeln!(
             m,
             "# HELP gardefou_flag Flags the PLC's filter reads (1: up)."
@@ -362,5 +376,25 @@ mod tests {
         assert_eq!(l.quantile(1.0), Some(Duration::from_secs(3)));
         assert_eq!(l.max, Duration::from_secs(3));
         assert_eq!(l.at_most(100), 100);
+    }
+
+    #[test]
+    fn a_probe_under_way_shows_in_status_and_metrics() {
+        let plant = datasets::sorting::plant();
+        let mut s = Status::new(
+            &plant,
+            "test".into(),
+            TimeFormat::Numeric(diagnoser::TimeUnit::Ms),
+        );
+        let idle = s.metrics();
+        assert!(idle.contains("gardefou_probing 0\n"), "{idle}");
+        s.probe = Some("released A4 to tell F3, F11 apart".into());
+        s.probes = 1;
+        let body: serde_json::Value = serde_json::from_str(&s.json()).expect("JSON");
+        assert_eq!(body["probe"], "released A4 to tell F3, F11 apart");
+        assert_eq!(body["probes"], 1);
+        let m = s.metrics();
+        assert!(m.contains("gardefou_probing 1\n"), "{m}");
+        assert!(m.contains("gardefou_probes_total 1\n"), "{m}");
     }
 }
