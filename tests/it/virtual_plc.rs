@@ -455,10 +455,11 @@ async fn the_virtual_plc_takes_a_probing_move_only_where_its_filter_allows_it() 
         .expect("connects");
     let (_, before) = read_image(&mut ctx).await;
     let a6_asked = !before[usize::from(a6)];
-    write(&mut ctx, a3_value, true).await;
-    write(&mut ctx, a3_probe, true).await;
+    // A6 first: the scan that refuses A3 has then read A6's request too.
     write(&mut ctx, a6_value, a6_asked).await;
     write(&mut ctx, a6_probe, true).await;
+    write(&mut ctx, a3_value, true).await;
+    write(&mut ctx, a3_probe, true).await;
     // Every coil up to A6_PROBE_REFUSED in one read: one image of the PLC.
     let n = a6_refused + 1;
     // The scans that take the requests come within a few scan periods.
