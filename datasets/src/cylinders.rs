@@ -267,6 +267,11 @@ impl CylinderRig {
         rig
     }
 
+    /// Whether any object is still on the rig (none: nothing left to move).
+    pub fn occupied(&self) -> bool {
+        !self.objects.is_empty()
+    }
+
     /// Objects pushed from one corner to the next so far.
     pub fn moves(&self) -> u64 {
         self.moves

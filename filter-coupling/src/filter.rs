@@ -248,8 +248,9 @@ pub struct Filter {
     requested: Vec<Option<bool>>,
     /// Scratch: the orders being computed.
     orders: Vec<bool>,
-    /// Per sensor slot, how a functional program reads it: as the functional
-    /// constraints do (a failed sensor reads what its estimate makes certain).
+    /// Per sensor a flag can declare failed, its slot and how a functional
+    /// program reads it: as the functional constraints do (a failed sensor
+    /// reads what its estimate makes certain). The others read as they are.
     certain: Vec<(usize, Op)>,
 }
 
@@ -259,21 +260,23 @@ enum ObserverOp {
     Toggle(Op),
 }
 
-/// Per sensor, its slot and its reading where it must hold for certain: the
-/// rewriting of the functional constraints applied to the sensor alone.
+/// Per sensor with a reading (an estimate, or none: it may read anything),
+/// its slot and its reading where it must hold for certain: the rewriting of
+/// the functional constraints applied to the sensor alone, which reads no
+/// other sensor.
 fn certain_sensors(
-    plant: &Plant,
     index: &HashMap<String, usize>,
     readings: &[Estimate],
     options: RewriteOptions,
 ) -> Result<Vec<(usize, Op)>, String> {
-    plant
-        .signals
-        .of_kind(SignalKind::Sensor)
-        .map(|s| {
-            let name = plant.signals.name(s);
-            let read = rewrite_certain(&Expr::Var(name.to_string()), readings, options);
-            Ok((index[name], compile(&read, index)?))
+    readings
+        .iter()
+        .map(|e| {
+            let read = rewrite_certain(&Expr::Var(e.sensor.clone()), readings, options);
+            let slot = index
+                .get(&e.sensor)
+                .ok_or_else(|| format!("no sensor '{}'", e.sensor))?;
+            Ok((*slot, compile(&read, index)?))
         })
         .collect()
 }
@@ -688,7 +691,7 @@ impl Filter {
         let declared_only = RewriteOptions {
             use_suspects: false,
         };
-        let certain = certain_sensors(plant, &index, &readings, declared_only)?;
+        let certain = certain_sensors(&index, &readings, declared_only)?;
         let observers = compile_observers(plant, &index)?;
         let part_fallback = part_fallbacks(plant, coupling, &index, &actuators, &estimates);
         let n = names.len();
@@ -772,13 +775,13 @@ impl Filter {
     /// it moves on no sooner than the sensor would have risen. A sensor only
     /// suspected reads as it is. The estimate's intervals are those of the
     /// last scan; call it before [`Filter::scan`].
-    pub fn certain_sensors(&self, io: &mut [bool]) {
-        let mut cur = self.cur.clone();
-        for &(i, _) in &self.certain {
-            cur[i] = io[i];
-        }
-        for (i, op) in &self.certain {
-            io[*i] = op.eval(&cur, &self.prev);
+    pub fn certain_sensors(&mut self, io: &mut [bool]) {
+        for &(i, ref op) in &self.certain {
+            // The reading reads its own sensor, as `io` has it, and flags
+            // and intervals as the last scan left them.
+            let last = std::mem::replace(&mut self.cur[i], io[i]);
+            io[i] = op.eval(&self.cur, &self.prev);
+            self.cur[i] = last;
         }
     }
 

@@ -307,16 +307,12 @@ impl Rig {
         }
     }
 
-    /// The functional program beside the filter, if the plant has one.
-    fn program(self) -> Option<ConstraintControl> {
+    /// The functional program beside the filter for `plant`, if the rig has
+    /// one.
+    fn program(self, plant: &Plant) -> Result<Option<ConstraintControl>, String> {
         match self {
-            Rig::Sorting => None,
-            Rig::Cylinders => {
-                let plant = datasets::cylinders::plant();
-                CylinderIds::resolve(&plant)
-                    .ok()
-                    .map(ConstraintControl::new)
-            }
+            Rig::Sorting => Ok(None),
+            Rig::Cylinders => Ok(Some(ConstraintControl::new(CylinderIds::resolve(plant)?))),
         }
     }
 }
@@ -354,7 +350,7 @@ impl Machine {
     fn work_waiting(&self) -> bool {
         match self {
             Machine::Sorting(m) => m.occupied(),
-            Machine::Cylinders(m) => !m.objects().is_empty(),
+            Machine::Cylinders(m) => m.occupied(),
         }
     }
 }
@@ -501,7 +497,7 @@ fn simulate(
         plc = plc.with_probing(plant);
     }
     let rig = Rig::of(plant)?;
-    if let Some(program) = rig.program() {
+    if let Some(program) = rig.program(plant)? {
         plc = plc.with_program(plant, program);
     }
     let mut physics = Watched::new(rig, run.from);

@@ -164,8 +164,9 @@ impl Prober {
     }
 
     /// Ends the probe under way, if any, without waiting for its answer
-    /// (the plant is no longer seen, or the run stops): the output goes back
-    /// to the control, and `why` is what the record says.
+    /// (silence has had its time, the plant is no longer seen, or the run
+    /// stops): the output goes back to the control, and `why` is what the
+    /// record says.
     pub fn abandon(&mut self, why: &str, filter: &mut Filter) -> Option<&ProbeRecord> {
         let probe = self.active.take()?;
         filter.request(&probe.actuator, None);
@@ -217,13 +218,7 @@ impl Prober {
         }
         if let Some(probe) = &self.active {
             if t > probe.until + PATIENCE {
-                self.probes.push(ProbeRecord {
-                    t: probe.from,
-                    part: probe.part.clone(),
-                    reason: format!("{}: no verdict change", probe.describe()),
-                });
-                filter.request(&probe.actuator, None);
-                self.active = None;
+                self.abandon("no verdict change", filter);
             }
             return;
         }

@@ -376,10 +376,10 @@ impl PartDiagnoser {
     /// orders pass a safety filter that may hold one back, as a coupled
     /// filter does while a sensor is suspected. Commands are never blamed, so
     /// an edge is not judged by the order that did not follow it at once.
-    pub fn with_held_reactions(&self) -> PartDiagnoser {
+    pub fn with_held_reactions(self) -> PartDiagnoser {
         PartDiagnoser {
             held_reactions: true,
-            ..self.clone()
+            ..self
         }
     }
 
