@@ -7,11 +7,12 @@
 //! fields cannot contain commas, quotes or line breaks — log values never need to).
 
 use std::fmt::Write as _;
-use std::io::{self, BufRead, BufWriter, Read, Write};
+use std::io::{self, BufRead, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use vocabulary::{Located, Location, SignalTable, Time, TimeFormat};
 
+use crate::plain;
 use crate::rows::Records;
 
 /// Capacity of the writers' buffers.
@@ -30,12 +31,25 @@ struct Field {
 /// file that is not a log (or has no line breaks) can take.
 pub const LONGEST_LINE: usize = 1 << 20;
 
-/// The records of a CSV log, read one line at a time, reusing their buffers.
+/// How many bytes a reader asks its source for at once: large reads, and a
+/// line end found in a block rather than a line read at a time.
+const BLOCK: usize = 1 << 18;
+
+/// The records of a CSV log, read in blocks of bytes, reusing their buffers.
 pub struct CsvRecords<R> {
     reader: R,
     path: PathBuf,
+    /// Bytes read ahead: `buffer[pos..filled]` are not consumed yet. It grows
+    /// past [`BLOCK`] only to hold one line of up to [`LONGEST_LINE`] bytes.
+    buffer: Vec<u8>,
+    pos: usize,
+    filled: usize,
+    /// Whether the source said it has no more bytes.
+    exhausted: bool,
     line: String,
     fields: Vec<Field>,
+    /// A line read plainly, still in `buffer` and not split yet.
+    plain: Option<(usize, usize)>,
     line_no: usize,
     first_line: bool,
 }
@@ -46,8 +60,13 @@ impl<R: BufRead> CsvRecords<R> {
         CsvRecords {
             reader,
             path: path.to_path_buf(),
+            buffer: Vec::new(),
+            pos: 0,
+            filled: 0,
+            exhausted: false,
             line: String::new(),
             fields: Vec::new(),
+            plain: None,
             line_no: 0,
             first_line: true,
         }
@@ -55,55 +74,110 @@ impl<R: BufRead> CsvRecords<R> {
 
     /// Reads the next non-blank record; `Ok(false)` at the end of the input.
     fn read_record(&mut self) -> Result<bool, Located> {
-        loop {
-            let mut bytes = std::mem::take(&mut self.line).into_bytes();
-            bytes.clear();
-            let read = self
-                .reader
-                .by_ref()
-                .take(LONGEST_LINE as u64 + 1)
-                .read_until(b'\n', &mut bytes);
-            let n = match read {
-                Ok(n) => n,
-                Err(e) => return Err(crate::rows::cannot_read(&self.path, self.line_no + 1, &e)),
-            };
-            if n == 0 {
-                self.fields.clear();
-                return Ok(false);
+        self.plain = None;
+        while let Some((start, end, has_end)) = self.next_line()? {
+            if self.take_line(start, end, has_end)? {
+                return Ok(true);
             }
-            self.line_no += 1;
-            if n > LONGEST_LINE && bytes.last() != Some(&b'\n') {
-                let location = Location::new(&self.path, self.line_no, 1);
-                let message = format!(
-                    "line longer than {} MiB: not a log's line (a header of 10,000 signals takes 0.1 MiB)",
-                    LONGEST_LINE >> 20
-                );
-                return Err(Located::new(location, message));
-            }
-            let mut text = match String::from_utf8(bytes) {
-                Ok(text) => text,
-                Err(e) => {
-                    let column = e.utf8_error().valid_up_to() + 1;
-                    let location = Location::new(&self.path, self.line_no, column);
-                    return Err(Located::new(location, "invalid UTF-8 text"));
-                }
-            };
-            if text.ends_with('\n') {
-                text.pop();
-                if text.ends_with('\r') {
-                    text.pop();
-                }
-            }
-            if std::mem::take(&mut self.first_line) && text.starts_with('\u{feff}') {
-                text.replace_range(..'\u{feff}'.len_utf8(), "");
-            }
-            self.line = text;
-            if self.line.trim_ascii().is_empty() {
-                continue;
-            }
-            self.split();
-            return Ok(true);
         }
+        self.fields.clear();
+        Ok(false)
+    }
+
+    /// The next line as a range of `buffer` (without its line end) and whether
+    /// it has a line end; `None` at the end of the input.
+    fn next_line(&mut self) -> Result<Option<(usize, usize, bool)>, Located> {
+        let mut searched = 0;
+        loop {
+            let unread = &self.buffer[self.pos + searched..self.filled];
+            if let Some(at) = plain::find_byte(unread, b'\n') {
+                let (start, end) = (self.pos, self.pos + searched + at);
+                self.pos = end + 1;
+                self.line_no += 1;
+                self.check_length(end - start)?;
+                return Ok(Some((start, end, true)));
+            }
+            searched = self.filled - self.pos;
+            if searched > LONGEST_LINE {
+                self.line_no += 1;
+                return Err(self.too_long());
+            }
+            if self.exhausted {
+                if searched == 0 {
+                    return Ok(None);
+                }
+                let start = std::mem::replace(&mut self.pos, self.filled);
+                self.line_no += 1;
+                return Ok(Some((start, self.filled, false)));
+            }
+            self.fill()?;
+        }
+    }
+
+    /// Reads more of the source after what is not consumed yet.
+    fn fill(&mut self) -> Result<(), Located> {
+        if self.pos > 0 {
+            self.buffer.copy_within(self.pos..self.filled, 0);
+            self.filled -= self.pos;
+            self.pos = 0;
+        }
+        if self.filled == self.buffer.len() {
+            // A line of up to LONGEST_LINE bytes and its line end must fit.
+            let size = (2 * self.buffer.len()).clamp(BLOCK, LONGEST_LINE + BLOCK);
+            self.buffer.resize(size, 0);
+        }
+        loop {
+            match self.reader.read(&mut self.buffer[self.filled..]) {
+                Ok(0) => self.exhausted = true,
+                Ok(n) => self.filled += n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(crate::rows::cannot_read(&self.path, self.line_no + 1, &e)),
+            }
+            return Ok(());
+        }
+    }
+
+    fn check_length(&self, length: usize) -> Result<(), Located> {
+        if length > LONGEST_LINE {
+            Err(self.too_long())
+        } else {
+            Ok(())
+        }
+    }
+
+    fn too_long(&self) -> Located {
+        let location = Location::new(&self.path, self.line_no, 1);
+        let message = format!(
+            "line longer than {} MiB: not a log's line (a header of 10,000 signals takes 0.1 MiB)",
+            LONGEST_LINE >> 20
+        );
+        Located::new(location, message)
+    }
+
+    /// Makes `buffer[start..end]`, the current line, the current record:
+    /// `Ok(false)` if it is blank.
+    fn take_line(&mut self, start: usize, end: usize, has_end: bool) -> Result<bool, Located> {
+        let text = match std::str::from_utf8(&self.buffer[start..end]) {
+            Ok(text) => text,
+            Err(e) => {
+                let location = Location::new(&self.path, self.line_no, e.valid_up_to() + 1);
+                return Err(Located::new(location, "invalid UTF-8 text"));
+            }
+        };
+        let mut text = match text.strip_suffix('\r') {
+            Some(text) if has_end => text,
+            _ => text,
+        };
+        if std::mem::take(&mut self.first_line) {
+            text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        }
+        self.line.clear();
+        self.line.push_str(text);
+        if self.line.trim_ascii().is_empty() {
+            return Ok(false);
+        }
+        self.split();
+        Ok(true)
     }
 
     fn split(&mut self) {
@@ -111,10 +185,7 @@ impl<R: BufRead> CsvRecords<R> {
         let bytes = self.line.as_bytes();
         let mut from = 0;
         loop {
-            let to = bytes[from..]
-                .iter()
-                .position(|&b| b == b',')
-                .map_or(bytes.len(), |p| from + p);
+            let to = plain::find_byte(&bytes[from..], b',').map_or(bytes.len(), |p| from + p);
             let (mut start, mut end) = (from, to);
             while start < end && bytes[start].is_ascii_whitespace() {
                 start += 1;
@@ -139,6 +210,34 @@ impl<R: BufRead> CsvRecords<R> {
 impl<R: BufRead> Records for CsvRecords<R> {
     fn next_record(&mut self) -> Result<bool, Located> {
         self.read_record()
+    }
+
+    #[inline(always)]
+    fn unread(&self) -> &[u8] {
+        &self.buffer[self.pos..self.filled]
+    }
+
+    #[inline(always)]
+    fn read_plain(&mut self, length: usize) -> bool {
+        if length > LONGEST_LINE || self.unread().get(length) != Some(&b'\n') {
+            return false;
+        }
+        self.plain = Some((self.pos, self.pos + length));
+        self.pos += length + 1;
+        self.line_no += 1;
+        self.first_line = false;
+        true
+    }
+
+    fn settle(&mut self) {
+        if let Some((start, end)) = self.plain.take() {
+            // A plain line is text with no line end: it reads as it would
+            // have.
+            let text = String::from_utf8_lossy(&self.buffer[start..end]);
+            self.line.clear();
+            self.line.push_str(&text);
+            self.split();
+        }
     }
 
     fn len(&self) -> usize {

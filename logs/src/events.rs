@@ -28,6 +28,7 @@ use std::path::Path;
 use vocabulary::{Event, Located, Location, SignalTable, Time, TimeFormat, TimeUnit};
 
 use crate::csv::{self, CsvRecords, TimeText};
+use crate::plain::{self, SignalNames};
 use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
 use crate::{Changes, EventLog, TimeFormatChoice};
 
@@ -126,6 +127,33 @@ pub struct EventReader<'a, S> {
     state: State,
     previous: Option<(Time, usize)>,
     end: Option<Time>,
+    /// How rows written plainly read (see [`PlainEvents`]), when the header
+    /// is `t,signal,value` and times are numbers.
+    plain: Option<PlainEvents>,
+}
+
+/// A row written `t,signal,value` plainly: a decimal time in the log's unit,
+/// a signal name as the plant spells it, `0` or `1`. Rows like this make up
+/// nearly every events log, and read without their fields; any other row
+/// (quotes, spaces, fractions, an end row, an unknown signal, ...) is read
+/// field by field, with the messages of the form.
+struct PlainEvents {
+    names: SignalNames,
+    nanos: Time,
+}
+
+impl PlainEvents {
+    /// The event of the row at the start of `row` and the length of its line,
+    /// if it is written plainly and not before `not_before`.
+    #[inline(always)]
+    fn read(&self, row: &[u8], not_before: Time) -> Option<(Event, usize)> {
+        let (t, digits) = plain::time(row, self.nanos)?;
+        let rest = row.get(digits..)?.strip_prefix(b",")?;
+        let (signal, length) = self.names.prefix(rest)?;
+        let value = plain::bit(&rest[length + 1..])?;
+        // Time going backwards is for the fields' reading to say.
+        (t >= not_before).then_some((Event { t, signal, value }, digits + length + 3))
+    }
 }
 
 impl<'a, R: BufRead> EventReader<'a, CsvRecords<R>> {
@@ -162,6 +190,13 @@ impl<'a, S: Records> EventReader<'a, S> {
         } else {
             State::Done
         };
+        let plain = match time.format() {
+            TimeFormat::Numeric(unit) if columns == [0, 1, 2] && width == 3 => Some(PlainEvents {
+                names: SignalNames::new(signals),
+                nanos: unit.nanos(),
+            }),
+            _ => None,
+        };
         Ok(EventReader {
             rows,
             signals,
@@ -171,6 +206,7 @@ impl<'a, S: Records> EventReader<'a, S> {
             state,
             previous: None,
             end: None,
+            plain,
         })
     }
 
@@ -239,9 +275,28 @@ impl<'a, S: Records> EventReader<'a, S> {
         Ok(Event { t, signal, value })
     }
 
+    /// The next row if it is written plainly (see [`PlainEvents`]), read
+    /// straight from its line; `None`, having read nothing, otherwise.
+    #[inline(always)]
+    fn next_plain(&mut self) -> Option<Event> {
+        let plain = self
+            .plain
+            .as_ref()
+            .filter(|_| self.state == State::Reading)?;
+        let not_before = self.previous.map_or(Time::MIN, |(t, _)| t);
+        let (event, length) = plain.read(self.rows.unread(), not_before)?;
+        if !self.rows.read_plain(length) {
+            return None;
+        }
+        self.previous = Some((event.t, self.rows.line_no()));
+        Some(event)
+    }
+
     /// The error for the last row read, `event`, giving its signal another value
     /// than the row on line `earlier` at the same time.
-    fn conflict(&self, event: Event, earlier: usize) -> Located {
+    #[cold]
+    fn conflict(&mut self, event: Event, earlier: usize) -> Located {
+        self.rows.settle();
         let message = format!(
             "conflicting values for signal '{}' at time {}: line {earlier} gives the other value",
             self.signals.name(event.signal),
@@ -255,6 +310,9 @@ impl<S: Records> Iterator for EventReader<'_, S> {
     type Item = Result<Event, Located>;
 
     fn next(&mut self) -> Option<Self::Item> {
+        if let Some(event) = self.next_plain() {
+            return Some(Ok(event));
+        }
         if let Err(e) = self.state.advance(&mut self.rows)? {
             return Some(Err(e));
         }
@@ -380,31 +438,47 @@ impl<S: Records> Changes for EventChanges<'_, S> {
     /// Appends the changes of the next scan (its rows at one time) to `out`,
     /// sorted by signal; `Ok(false)` at the end of the log.
     fn read_scan(&mut self, out: &mut Vec<Event>) -> Result<bool, Located> {
-        let Some(first) = self.next.take().map(Ok).or_else(|| self.rows.next()) else {
-            return Ok(false);
+        let first = match self.next.take() {
+            Some(event) => event,
+            None => match self.rows.next() {
+                Some(row) => row?,
+                None => return Ok(false),
+            },
         };
-        let first = first?;
-        let t = first.t;
         let from = out.len();
-        let mut row = Some(Ok(first));
-        while let Some(event) = row {
-            let event = event?;
-            if event.t != t {
+        self.take(first, out)?;
+        loop {
+            let event = match self.rows.next_plain() {
+                Some(event) => event,
+                None => match self.rows.next() {
+                    Some(row) => row?,
+                    None => break,
+                },
+            };
+            if event.t != first.t {
                 self.next = Some(event);
                 break;
             }
-            let i = event.signal.index();
-            if event.value != self.current[i] {
-                if self.last[i].0 == event.t {
-                    return Err(self.rows.conflict(event, self.last[i].1));
-                }
-                self.current[i] = event.value;
-                out.push(event);
-            }
-            self.last[i] = (event.t, self.rows.line());
-            row = self.rows.next();
+            self.take(event, out)?;
         }
         out[from..].sort_unstable_by_key(|e| e.signal);
         Ok(true)
+    }
+}
+
+impl<S: Records> EventChanges<'_, S> {
+    /// Takes the last row read, `event`, into its scan: a change goes to `out`.
+    #[inline(always)]
+    fn take(&mut self, event: Event, out: &mut Vec<Event>) -> Result<(), Located> {
+        let i = event.signal.index();
+        if event.value != self.current[i] {
+            if self.last[i].0 == event.t {
+                return Err(self.rows.conflict(event, self.last[i].1));
+            }
+            self.current[i] = event.value;
+            out.push(event);
+        }
+        self.last[i] = (event.t, self.rows.line());
+        Ok(())
     }
 }

@@ -158,6 +158,86 @@ struct Last {
     line: usize,
 }
 
+/// The rules that tie each signal's intervals together, row after row:
+/// contiguous, alternating, starting at the log's first time, only the last
+/// one open. Both readers of the form apply them: [`IntervalReader`] row by
+/// row, and the Parquet reader column by column.
+pub(crate) struct Rules {
+    /// The log's first time and the line of its first row.
+    start: Option<(Time, usize)>,
+    last: Vec<Option<Last>>,
+}
+
+/// How a row breaks [`Rules`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Broken {
+    /// The signal's first interval starts after the log's first time, given by
+    /// the row on `first_line`.
+    LateFirst { log_start: Time, first_line: usize },
+    /// The signal's interval on `line` is still open.
+    StillOpen { line: usize },
+    /// The interval does not start where the signal's previous one, on
+    /// `line`, ends.
+    Gap { line: usize, previous_end: Time },
+    /// The interval holds the value of the signal's previous one, on `line`.
+    NotMaximal { line: usize },
+}
+
+impl Rules {
+    /// Rules for a log of `n` signals, before its first row.
+    pub(crate) fn new(n: usize) -> Rules {
+        Rules {
+            start: None,
+            last: vec![None; n],
+        }
+    }
+
+    /// Takes the interval of the row on `line`, or says which rule it breaks.
+    #[inline]
+    pub(crate) fn check(&mut self, interval: &Interval, line: usize) -> Result<(), Broken> {
+        let Some(slot) = self.last.get_mut(interval.signal.index()) else {
+            return Ok(());
+        };
+        match *slot {
+            None => match self.start {
+                None => self.start = Some((interval.start, line)),
+                Some((log_start, first_line)) if log_start != interval.start => {
+                    return Err(Broken::LateFirst {
+                        log_start,
+                        first_line,
+                    });
+                }
+                Some(_) => {}
+            },
+            Some(last) => {
+                let Some(previous_end) = last.end else {
+                    return Err(Broken::StillOpen { line: last.line });
+                };
+                if previous_end != interval.start {
+                    return Err(Broken::Gap {
+                        line: last.line,
+                        previous_end,
+                    });
+                }
+                if last.value == interval.value {
+                    return Err(Broken::NotMaximal { line: last.line });
+                }
+            }
+        }
+        *slot = Some(Last {
+            value: interval.value,
+            end: interval.end,
+            line,
+        });
+        Ok(())
+    }
+
+    /// Whether every signal has had an interval, or no row was read.
+    pub(crate) fn complete(&self) -> bool {
+        self.start.is_none() || self.last.iter().all(Option::is_some)
+    }
+}
+
 /// Reads an intervals log row by row: an iterator of [`Interval`]s.
 ///
 /// It checks the header, the number of fields, signal names, values and times,
@@ -175,9 +255,7 @@ pub struct IntervalReader<'a, S> {
     state: State,
     /// Whether the end-of-input check is done (or moot after an error).
     end_checked: bool,
-    /// The log's first time and the line of its first row.
-    start: Option<(Time, usize)>,
-    last: Vec<Option<Last>>,
+    rules: Rules,
 }
 
 impl<'a, R: BufRead> IntervalReader<'a, CsvRecords<R>> {
@@ -227,8 +305,7 @@ impl<'a, S: Records> IntervalReader<'a, S> {
             time,
             state,
             end_checked: false,
-            start: None,
-            last: vec![None; signals.len()],
+            rules: Rules::new(signals.len()),
         })
     }
 
@@ -249,7 +326,6 @@ impl<'a, S: Records> IntervalReader<'a, S> {
         let line = rows.line_no();
         rows.check_width(self.width)?;
         let signal = rows.signal(signal_col, "signal", self.signals)?;
-        let name = self.signals.name(signal);
         let value = rows.value(value_col, "value")?;
         let start = self.time.parse(rows, start_col, "t_start")?;
         let end = if rows.is_blank(end_col) {
@@ -266,55 +342,62 @@ impl<'a, S: Records> IntervalReader<'a, S> {
             }
             Some(end)
         };
-        let format = self.time.format();
-        let slot = &mut self.last[signal.index()];
-        match *slot {
-            None => match self.start {
-                None => self.start = Some((start, line)),
-                Some((log_start, first_line)) if log_start != start => {
-                    let message = format!(
-                        "the first interval of signal '{name}' starts at {}, not at the log's first time {} (line {first_line})",
-                        rows.field(start_col),
-                        format.format(log_start)
-                    );
-                    return Err(rows.field_error(start_col, "t_start", message));
-                }
-                Some(_) => {}
-            },
-            Some(last) => {
-                let Some(previous_end) = last.end else {
-                    let message = format!(
-                        "signal '{name}' already has an open interval on line {}: only its last interval may be open",
-                        last.line
-                    );
-                    return Err(rows.field_error(signal_col, "signal", message));
-                };
-                if previous_end != start {
-                    let message = format!(
-                        "interval of signal '{name}' starts at {} but its previous interval (line {}) ends at {}",
-                        rows.field(start_col),
-                        last.line,
-                        format.format(previous_end)
-                    );
-                    return Err(rows.field_error(start_col, "t_start", message));
-                }
-                if last.value == value {
-                    let message = format!(
-                        "signal '{name}' holds {} in two consecutive intervals (lines {} and {line}): intervals must be maximal",
-                        u8::from(value),
-                        last.line
-                    );
-                    return Err(rows.field_error(value_col, "value", message));
-                }
-            }
-        }
-        *slot = Some(Last { value, end, line });
-        Ok(Interval {
+        let interval = Interval {
             signal,
             value,
             start,
             end,
-        })
+        };
+        match self.rules.check(&interval, line) {
+            Ok(()) => Ok(interval),
+            Err(broken) => Err(self.broken(broken, &interval)),
+        }
+    }
+
+    /// The error for the current row, which breaks a rule of the form.
+    fn broken(&self, broken: Broken, interval: &Interval) -> Located {
+        let rows = &self.rows;
+        let [signal_col, value_col, start_col, _] = self.columns;
+        let name = self.signals.name(interval.signal);
+        let line = rows.line_no();
+        let format = self.time.format();
+        match broken {
+            Broken::LateFirst {
+                log_start,
+                first_line,
+            } => {
+                let message = format!(
+                    "the first interval of signal '{name}' starts at {}, not at the log's first time {} (line {first_line})",
+                    rows.field(start_col),
+                    format.format(log_start)
+                );
+                rows.field_error(start_col, "t_start", message)
+            }
+            Broken::StillOpen { line: open } => {
+                let message = format!(
+                    "signal '{name}' already has an open interval on line {open}: only its last interval may be open"
+                );
+                rows.field_error(signal_col, "signal", message)
+            }
+            Broken::Gap {
+                line: previous,
+                previous_end,
+            } => {
+                let message = format!(
+                    "interval of signal '{name}' starts at {} but its previous interval (line {previous}) ends at {}",
+                    rows.field(start_col),
+                    format.format(previous_end)
+                );
+                rows.field_error(start_col, "t_start", message)
+            }
+            Broken::NotMaximal { line: previous } => {
+                let message = format!(
+                    "signal '{name}' holds {} in two consecutive intervals (lines {previous} and {line}): intervals must be maximal",
+                    u8::from(interval.value),
+                );
+                rows.field_error(value_col, "value", message)
+            }
+        }
     }
 
     /// At the end of the input: the error naming the signals that had no interval.
@@ -322,10 +405,10 @@ impl<'a, S: Records> IntervalReader<'a, S> {
         let missing: Vec<&str> = self
             .signals
             .iter()
-            .filter(|(id, _)| self.last[id.index()].is_none())
+            .filter(|(id, _)| self.rules.last[id.index()].is_none())
             .map(|(_, s)| s.name.as_str())
             .collect();
-        if missing.is_empty() || self.start.is_none() {
+        if self.rules.complete() {
             return None;
         }
         let s = if missing.len() > 1 { "s" } else { "" };
@@ -450,11 +533,11 @@ impl<'a, S: Records> IntervalChanges<'a, S> {
 
 impl<S: Records> Changes for IntervalChanges<'_, S> {
     fn start(&self) -> Time {
-        self.unfold.start
+        self.unfold.start()
     }
 
     fn initial(&self) -> &[bool] {
-        &self.unfold.initial
+        self.unfold.initial()
     }
 
     fn format(&self) -> TimeFormat {
@@ -465,7 +548,7 @@ impl<S: Records> Changes for IntervalChanges<'_, S> {
         let from = out.len();
         while out.len() == from {
             let Some(interval) = self.rows.next() else {
-                if self.unfold.finished {
+                if self.unfold.finished() {
                     return Ok(false);
                 }
                 self.unfold.finish(out);
@@ -482,7 +565,7 @@ impl<S: Records> Changes for IntervalChanges<'_, S> {
 }
 
 /// What the first pass over an intervals log finds.
-struct Survey {
+pub(crate) struct Survey {
     start: Time,
     initial: Vec<bool>,
     /// Each signal's last row.
@@ -510,43 +593,81 @@ impl Survey {
         n: usize,
         path: &Path,
     ) -> Result<Survey, Located> {
-        let mut start = None;
-        let mut initial = vec![false; n];
-        let mut last_row = vec![u64::MAX; n];
-        let (mut by_end, mut by_start) = (true, true);
-        let (mut previous_end, mut previous_start) = (None, None);
-        for (row, interval) in intervals.enumerate() {
-            let Interval {
-                signal,
-                value,
-                start: t,
-                end,
-            } = interval?;
-            let log_start = *start.get_or_insert(t);
-            let i = signal.index();
-            last_row[i] = row as u64;
-            if t == log_start {
-                initial[i] = value;
-            }
-            by_start &= previous_start.is_none_or(|p| t >= p);
-            previous_start = Some(t);
-            if let Some(end) = end.filter(|&e| e > log_start) {
-                by_end &= previous_end.is_none_or(|p| end >= p);
-                previous_end = Some(end);
-            }
+        let mut surveyor = Surveyor::new(n);
+        for interval in intervals {
+            surveyor.push(&interval?);
         }
-        let Some(start) = start else {
-            return Err(rows::no_data(path));
-        };
-        let order = match (by_end, by_start) {
+        surveyor.finish().ok_or_else(|| rows::no_data(path))
+    }
+}
+
+/// A first pass under way: what it has found so far.
+pub(crate) struct Surveyor {
+    start: Option<Time>,
+    initial: Vec<bool>,
+    last_row: Vec<u64>,
+    /// Rows taken so far.
+    rows: u64,
+    by_end: bool,
+    by_start: bool,
+    previous_end: Option<Time>,
+    previous_start: Option<Time>,
+}
+
+impl Surveyor {
+    /// Before the first row of a log of `n` signals.
+    pub(crate) fn new(n: usize) -> Surveyor {
+        Surveyor {
+            start: None,
+            initial: vec![false; n],
+            last_row: vec![u64::MAX; n],
+            rows: 0,
+            by_end: true,
+            by_start: true,
+            previous_end: None,
+            previous_start: None,
+        }
+    }
+
+    /// Takes the next row's interval, which obeys the form's [`Rules`].
+    #[inline]
+    pub(crate) fn push(&mut self, interval: &Interval) {
+        let &Interval {
+            signal,
+            value,
+            start: t,
+            end,
+        } = interval;
+        let log_start = *self.start.get_or_insert(t);
+        let i = signal.index();
+        if let Some(last) = self.last_row.get_mut(i) {
+            *last = self.rows;
+        }
+        if t == log_start
+            && let Some(initial) = self.initial.get_mut(i)
+        {
+            *initial = value;
+        }
+        self.rows += 1;
+        self.by_start &= self.previous_start.is_none_or(|p| t >= p);
+        self.previous_start = Some(t);
+        if let Some(end) = end.filter(|&e| e > log_start) {
+            self.by_end &= self.previous_end.is_none_or(|p| end >= p);
+            self.previous_end = Some(end);
+        }
+    }
+
+    /// What the pass found; `None` if it saw no row.
+    pub(crate) fn finish(self) -> Option<Survey> {
+        let order = match (self.by_end, self.by_start) {
             (true, _) => Order::ByEnd,
             (false, true) => Order::ByStart,
             (false, false) => Order::Sorted,
         };
-        Ok(Survey {
-            start,
-            initial,
-            last_row,
+        Some(Survey {
+            start: self.start?,
+            initial: self.initial,
+            last_row: self.last_row,
             order,
         })
     }
@@ -560,7 +681,7 @@ impl Survey {
 /// alternate). Several changes of one signal at one time (zero-length
 /// intervals) leave only the last value, and only if it differs from the value
 /// before.
-struct Unfold {
+pub(crate) struct Unfold {
     start: Time,
     initial: Vec<bool>,
     last_row: Vec<u64>,
@@ -572,7 +693,7 @@ struct Unfold {
 }
 
 impl Unfold {
-    fn new(survey: Survey) -> Unfold {
+    pub(crate) fn new(survey: Survey) -> Unfold {
         Unfold {
             start: survey.start,
             collapse: Collapse::new(survey.initial.clone()),
@@ -584,6 +705,22 @@ impl Unfold {
         }
     }
 
+    /// The log's first time.
+    pub(crate) fn start(&self) -> Time {
+        self.start
+    }
+
+    /// Every signal's value at the first time.
+    pub(crate) fn initial(&self) -> &[bool] {
+        &self.initial
+    }
+
+    /// Whether the changes come from the rows' ends ([`Unfold::feed_end`]),
+    /// not their starts ([`Unfold::feed_start`]).
+    pub(crate) fn by_end(&self) -> bool {
+        self.order == Order::ByEnd
+    }
+
     /// Takes row `row`; `false` if it contradicts the first pass (the file
     /// changed in between).
     fn feed(&mut self, row: u64, interval: Interval, out: &mut Vec<Event>) -> bool {
@@ -593,23 +730,54 @@ impl Unfold {
             start,
             end,
         } = interval;
-        match self.order {
-            Order::ByEnd => match end {
-                None => true,
-                Some(_) if self.last_row.get(signal.index()) == Some(&row) => true,
-                Some(end) => end <= self.start || self.collapse.claim(end, signal, !value, out),
-            },
-            Order::ByStart if start > self.start => self.collapse.claim(start, signal, value, out),
-            Order::Sorted if start > self.start => {
-                self.claims.push((start, signal, value));
-                true
-            }
-            Order::ByStart | Order::Sorted => true,
+        if self.by_end() {
+            self.feed_end(row, signal, value, end, out)
+        } else {
+            self.feed_start(signal, value, start, out)
+        }
+    }
+
+    /// [`Unfold::feed`] when [`Unfold::by_end`]: only the row's signal, value
+    /// and end count.
+    #[inline]
+    pub(crate) fn feed_end(
+        &mut self,
+        row: u64,
+        signal: SignalId,
+        value: bool,
+        end: Option<Time>,
+        out: &mut Vec<Event>,
+    ) -> bool {
+        match end {
+            None => true,
+            Some(_) if self.last_row.get(signal.index()) == Some(&row) => true,
+            Some(end) => end <= self.start || self.collapse.claim(end, signal, !value, out),
+        }
+    }
+
+    /// [`Unfold::feed`] otherwise: only the row's signal, value and start
+    /// count.
+    #[inline]
+    pub(crate) fn feed_start(
+        &mut self,
+        signal: SignalId,
+        value: bool,
+        start: Time,
+        out: &mut Vec<Event>,
+    ) -> bool {
+        if start <= self.start {
+            return true;
+        }
+        if self.order == Order::Sorted {
+            self.claims.push((start, signal, value));
+            true
+        } else {
+            self.collapse.claim(start, signal, value, out)
         }
     }
 
     /// At the end of the rows: the changes still held.
-    fn finish(&mut self, out: &mut Vec<Event>) {
+    pub(crate) fn finish(&mut self, out: &mut Vec<Event>) {
         // Stable: the changes of one signal at one time keep their order.
         let mut claims = std::mem::take(&mut self.claims);
         claims.sort_by_key(|c| c.0);
@@ -618,6 +786,11 @@ impl Unfold {
         }
         self.collapse.flush(out);
         self.finished = true;
+    }
+
+    /// Whether [`Unfold::finish`] has run.
+    pub(crate) fn finished(&self) -> bool {
+        self.finished
     }
 }
 

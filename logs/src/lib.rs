@@ -63,8 +63,10 @@ pub mod csv;
 mod detect;
 pub mod events;
 pub mod intervals;
+mod many;
 #[cfg(feature = "parquet")]
 pub mod parquet;
+mod plain;
 mod rows;
 pub mod scans;
 mod spool;
@@ -78,6 +80,7 @@ pub use intervals::{
     Interval, IntervalChanges, IntervalReader, IntervalWriter, read_intervals_as_events,
     read_intervals_as_events_from,
 };
+pub use many::{LOG_ENDINGS, OpenAhead, expand_dirs, open_ahead};
 #[cfg(feature = "parquet")]
 pub use parquet::write_intervals_parquet;
 pub use rows::{CellKind, Records};

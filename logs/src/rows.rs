@@ -21,6 +21,23 @@ use super::TimeFormatChoice;
 pub trait Records {
     /// Moves to the next non-blank record; `Ok(false)` at the end of the input.
     fn next_record(&mut self) -> Result<bool, Located>;
+    /// A container of lines' bytes not read yet, from the start of the next
+    /// line (empty for other containers): a form's reader may read a common
+    /// row's values straight from them, then [`Records::read_plain`] it.
+    fn unread(&self) -> &[u8] {
+        &[]
+    }
+    /// Reads the first `length` bytes of [`Records::unread`] as the next
+    /// record, if a line feed follows them: the caller vouches that they hold
+    /// exactly what the line's fields would (no quotes, spaces or carriage
+    /// return). Its fields are readable after [`Records::settle`]. `false`,
+    /// having read nothing, if that is not a line.
+    fn read_plain(&mut self, _length: usize) -> bool {
+        false
+    }
+    /// Splits a record [`Records::read_plain`] read into its
+    /// fields, for a message about it.
+    fn settle(&mut self) {}
     /// Number of fields in the current record.
     fn len(&self) -> usize;
     /// Whether the current record has no field.
@@ -96,6 +113,23 @@ impl<S: Records> Rows<S> {
     /// Reads the next non-blank record; `Ok(false)` at the end of the input.
     pub(crate) fn next_record(&mut self) -> Result<bool, Located> {
         self.records.next_record()
+    }
+
+    /// What is not read yet (see [`Records::unread`]).
+    #[inline(always)]
+    pub(crate) fn unread(&self) -> &[u8] {
+        self.records.unread()
+    }
+
+    /// Reads a plain line (see [`Records::read_plain`]).
+    #[inline(always)]
+    pub(crate) fn read_plain(&mut self, length: usize) -> bool {
+        self.records.read_plain(length)
+    }
+
+    /// Makes the fields of a plain record readable.
+    pub(crate) fn settle(&mut self) {
+        self.records.settle();
     }
 
     /// Reads the header record; an empty input is an error.

@@ -20,6 +20,7 @@ use vocabulary::error::quoted;
 use vocabulary::{Event, Located, SignalId, SignalTable, Time, TimeFormat, TimeUnit};
 
 use crate::csv::{self, CsvRecords, TimeText};
+use crate::plain;
 use crate::rows::{self, CellKind, Records, Rows, State, TimeParser};
 use crate::{Changes, EventLog, TimeFormatChoice};
 
@@ -96,6 +97,10 @@ pub struct ScanReader<'a, S> {
     state: State,
     previous: Option<(Time, usize)>,
     values: Vec<bool>,
+    /// Nanoseconds per unit of the log's numeric times: rows written plainly
+    /// (a decimal time, `0` and `1`, nothing else) then read straight from
+    /// their line, and any other row field by field.
+    plain: Option<Time>,
 }
 
 impl<'a, R: BufRead> ScanReader<'a, CsvRecords<R>> {
@@ -186,6 +191,10 @@ impl<'a, S: Records> ScanReader<'a, S> {
         } else {
             State::Done
         };
+        let plain = match time.format() {
+            TimeFormat::Numeric(unit) => Some(unit.nanos()),
+            TimeFormat::Rfc3339 => None,
+        };
         Ok(ScanReader {
             rows,
             signals,
@@ -195,6 +204,7 @@ impl<'a, S: Records> ScanReader<'a, S> {
             state,
             previous: None,
             values: vec![false; signals.len()],
+            plain,
         })
     }
 
@@ -212,6 +222,9 @@ impl<'a, S: Records> ScanReader<'a, S> {
     /// The next scan: its time and the value of every signal, indexed by
     /// [`SignalId::index`](crate::SignalId::index). `None` at the end of the log or after an error.
     pub fn next_scan(&mut self) -> Option<Result<(Time, &[bool]), Located>> {
+        if let Some(t) = self.next_plain() {
+            return Some(Ok((t, &self.values)));
+        }
         if let Err(e) = self.state.advance(&mut self.rows)? {
             return Some(Err(e));
         }
@@ -222,6 +235,21 @@ impl<'a, S: Records> ScanReader<'a, S> {
                 Some(Err(e))
             }
         }
+    }
+
+    /// The time of the next row if it is written plainly (see
+    /// [`plain_scan`]), its values in `values`; `None`, having read nothing,
+    /// otherwise.
+    fn next_plain(&mut self) -> Option<Time> {
+        let nanos = self.plain.filter(|_| self.state == State::Reading)?;
+        let after = self.previous.map(|(t, _)| t);
+        let row = self.rows.unread();
+        let (t, length) = plain_scan(row, &self.columns, nanos, after, &mut self.values)?;
+        if !self.rows.read_plain(length) {
+            return None;
+        }
+        self.previous = Some((t, self.rows.line_no()));
+        Some(t)
     }
 
     fn parse_row(&mut self) -> Result<Time, Located> {
@@ -254,6 +282,45 @@ impl<'a, S: Records> ScanReader<'a, S> {
         self.previous = Some((t, rows.line_no()));
         Ok(t)
     }
+}
+
+/// Reads the scan at the start of `row` if it is written plainly: a decimal
+/// time in `t`'s column, `0` or `1` in each signal's, later than `after`.
+/// Gives its time and the length of its line, and sets `values` (which a row
+/// that is not plain may leave half set: its reading field by field sets
+/// them all, or fails).
+fn plain_scan(
+    row: &[u8],
+    columns: &[Option<SignalId>],
+    nanos: Time,
+    after: Option<Time>,
+    values: &mut [bool],
+) -> Option<(Time, usize)> {
+    let mut at = 0;
+    let mut time = None;
+    for (i, column) in columns.iter().enumerate() {
+        if i > 0 {
+            if row.get(at) != Some(&b',') {
+                return None;
+            }
+            at += 1;
+        }
+        let rest = row.get(at..)?;
+        match column {
+            Some(id) => {
+                values[id.index()] = plain::bit(rest)?;
+                at += 1;
+            }
+            None => {
+                let (t, digits) = plain::time(rest, nanos)?;
+                time = Some(t);
+                at += digits;
+            }
+        }
+    }
+    let t = time?;
+    // Times that do not increase are for the fields' reading to say.
+    after.is_none_or(|previous| t > previous).then_some((t, at))
 }
 
 /// Reads a scans log file into the [`EventLog`] the events form would give,

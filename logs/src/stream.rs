@@ -191,10 +191,12 @@ impl std::fmt::Debug for LogStream {
 /// events over a bounded channel: memory stays at a few batches whatever the
 /// size of the log, and reading overlaps with what the caller does. Parquet
 /// rows come from polars (feature `parquet`), CSV lines from
-/// [`crate::csv::CsvRecords`]; both go through the same rules. The initial
-/// values are read before this returns. An intervals log is read twice (see
-/// [`crate::IntervalChanges`]). `candump -L` and VCD logs are read by
-/// [`candump::open`] and [`vcd::open`].
+/// [`crate::csv::CsvRecords`]; both go through the same rules (an intervals
+/// archive as the Parquet writer writes it is read column by column, by the
+/// same rules, and falls back to its records at the first row it doubts).
+/// The initial values are read before this returns. An intervals log is
+/// read twice (see [`crate::IntervalChanges`]). `candump -L` and VCD logs are
+/// read by [`candump::open`] and [`vcd::open`].
 ///
 /// Numeric timestamps are in `options.time_unit`; text timestamps may be RFC
 /// 3339 (detected from the first one, as [`TimeFormat::detect`] does). Parquet
@@ -226,6 +228,14 @@ fn open_regular(path: &Path, plant: &Plant, options: &IngestOptions) -> Result<L
         Some(format) => format,
         None => detect_format(path)?,
     };
+    // An archive is read column by column; a file that reader is not sure
+    // of, by the form's reader, which gives the form's errors.
+    #[cfg(feature = "parquet")]
+    if format == LogFormat::IntervalsParquet
+        && let Some(log) = crate::parquet::open_intervals(path, plant, options)?
+    {
+        return Ok(log);
+    }
     match format {
         LogFormat::Candump => candump::open(path, plant, options),
         LogFormat::Vcd => vcd::open(path, plant, options),

@@ -146,10 +146,8 @@ impl Job {
 
     fn csv(&self) -> Result<CsvRecords<BufReader<File>>, Located> {
         let file = open_file(&self.path)?;
-        Ok(CsvRecords::new(
-            BufReader::with_capacity(1 << 20, file),
-            &self.path,
-        ))
+        // The records read large blocks themselves, past a small buffer.
+        Ok(CsvRecords::new(BufReader::new(file), &self.path))
     }
 
     #[cfg(feature = "parquet")]

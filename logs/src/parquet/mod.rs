@@ -33,7 +33,7 @@ use std::thread::JoinHandle;
 use polars::prelude::{
     BooleanChunked, DataFrame, DataType, Engine, Float64Chunked, IdxSize, Int64Chunked, LazyFrame,
     ParquetReader, PlRefPath, PlanCallback, PolarsError, PolarsResult, ScanArgsParquet, SchemaRef,
-    SerReader, StringChunked,
+    SerReader, StringChunked, col,
 };
 use vocabulary::Located;
 use vocabulary::panics::{self, Containment};
@@ -42,9 +42,14 @@ use crate::IngestOptions;
 use crate::rows::{CellKind, Records, file_error, open_file};
 
 mod archive;
+mod columns;
+mod intervals;
 mod pages;
+#[cfg(test)]
+mod tests;
 
 pub use archive::write_intervals_parquet;
+pub(crate) use intervals::open_intervals;
 
 /// The first line of a polars error: its messages can span several lines of
 /// advice, and our errors are one line.
@@ -168,7 +173,7 @@ fn check_footer(path: &Path, size: u64) -> Result<(), Located> {
 }
 
 /// The schema of a Parquet file, from its footer.
-fn schema(path: &Path) -> Result<SchemaRef, Located> {
+pub(crate) fn schema(path: &Path) -> Result<SchemaRef, Located> {
     let size = check_frame(path)?;
     check_footer(path, size)?;
     contained(path, || {
@@ -268,7 +273,7 @@ impl ParquetRecords {
             Some(frames) => frames,
             None => self
                 .frames
-                .insert(Frames::start(&self.path, &self.options)?),
+                .insert(Frames::start(&self.path, &self.options, None)?),
         };
         match frames.next() {
             None => Ok(false),
@@ -472,19 +477,29 @@ impl Cells {
 
 /// The frames of the queries that read a file, in order, computed on a thread
 /// of its own.
-struct Frames {
+pub(crate) struct Frames {
     receiver: Receiver<DataFrame>,
     worker: Option<JoinHandle<PolarsResult<()>>>,
 }
 
 impl Frames {
-    fn start(path: &Path, options: &IngestOptions) -> Result<Frames, Located> {
-        contained(path, || Frames::start_uncontained(path, options))
+    /// Starts reading the file: every column, or only `columns` (in that
+    /// order), which polars then does not decode.
+    pub(crate) fn start(
+        path: &Path,
+        options: &IngestOptions,
+        columns: Option<&[&str]>,
+    ) -> Result<Frames, Located> {
+        contained(path, || Frames::start_uncontained(path, options, columns))
     }
 
-    fn start_uncontained(path: &Path, options: &IngestOptions) -> Result<Frames, Located> {
+    fn start_uncontained(
+        path: &Path,
+        options: &IngestOptions,
+        columns: Option<&[&str]>,
+    ) -> Result<Frames, Located> {
         let failed = |e: PolarsError| failure(path, &e.to_string());
-        let queries = slices(path, options.parquet_slice_rows)?;
+        let queries = slices(path, options.parquet_slice_rows, columns)?;
         // A rendezvous channel: the callback (on polars' blocking pool) waits
         // until the consumer takes the frame, so the engine never runs more than
         // a frame ahead of it, which bounds memory.
@@ -520,7 +535,7 @@ impl Frames {
     }
 
     /// The next frame, `None` at the end, or polars' error message.
-    fn next(&mut self) -> Option<Result<DataFrame, String>> {
+    pub(crate) fn next(&mut self) -> Option<Result<DataFrame, String>> {
         if let Ok(df) = self.receiver.recv() {
             return Some(Ok(df));
         }
@@ -537,15 +552,26 @@ impl Frames {
 /// The queries that read a file, one per slice of `slice_rows` rows: polars
 /// maps the whole file while a query runs; a query per slice maps it anew and
 /// unmaps it when done, so the file's resident pages stay bounded by a slice's.
-fn slices(path: &Path, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
-    contained(path, || slices_uncontained(path, slice_rows))
+fn slices(
+    path: &Path,
+    slice_rows: usize,
+    columns: Option<&[&str]>,
+) -> Result<Vec<LazyFrame>, Located> {
+    contained(path, || slices_uncontained(path, slice_rows, columns))
 }
 
-fn slices_uncontained(path: &Path, slice_rows: usize) -> Result<Vec<LazyFrame>, Located> {
+fn slices_uncontained(
+    path: &Path,
+    slice_rows: usize,
+    columns: Option<&[&str]>,
+) -> Result<Vec<LazyFrame>, Located> {
     let failed = |e: PolarsError| failure(path, &e.to_string());
     let slice_rows = slice_rows.max(1);
     let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
-    let lf = LazyFrame::scan_parquet(source, scan_args()).map_err(failed)?;
+    let mut lf = LazyFrame::scan_parquet(source, scan_args()).map_err(failed)?;
+    if let Some(columns) = columns {
+        lf = lf.select(columns.iter().map(|&name| col(name)).collect::<Vec<_>>());
+    }
     let file = open_file(path)?;
     let rows = ParquetReader::new(file).num_rows().map_err(failed)?;
     if rows <= slice_rows {

@@ -75,16 +75,20 @@ fn read_header(file: &File, at: u64, end: u64) -> Result<PageHeader, String> {
     }
 }
 
-/// What a page header says of the page's size and counts.
+/// What a page header says of the page's size, counts and encodings.
 #[derive(Debug, Default, PartialEq)]
-struct PageHeader {
+pub(super) struct PageHeader {
     /// Bytes of the header itself.
-    length: u64,
-    kind: i32,
-    uncompressed: i32,
-    compressed: i32,
+    pub(super) length: u64,
+    /// 0 a data page, 2 a dictionary page, 3 a v2 data page.
+    pub(super) kind: i32,
+    pub(super) uncompressed: i32,
+    pub(super) compressed: i32,
     /// `num_values` of a data, dictionary or v2 data page.
-    values: Option<i32>,
+    pub(super) values: Option<i32>,
+    /// The values' encoding, and a v1 data page's definition levels'.
+    pub(super) encoding: i32,
+    pub(super) level_encoding: i32,
     /// v2 data pages: nulls, rows, and the levels' byte lengths.
     nulls: i32,
     rows: i32,
@@ -92,7 +96,7 @@ struct PageHeader {
 }
 
 impl PageHeader {
-    fn check(&self, chunk_values: i64) -> Result<(), String> {
+    pub(super) fn check(&self, chunk_values: i64) -> Result<(), String> {
         let counts = [
             ("uncompressed size", self.uncompressed),
             ("compressed size", self.compressed),
@@ -127,6 +131,12 @@ impl PageHeader {
         Ok(())
     }
 
+    /// The header at the start of `bytes` (Thrift compact protocol); `None`
+    /// if it is cut short or malformed.
+    pub(super) fn read(bytes: &[u8]) -> Option<PageHeader> {
+        PageHeader::parse(bytes).ok()
+    }
+
     /// The header at the start of `bytes` (Thrift compact protocol).
     fn parse(bytes: &[u8]) -> Result<PageHeader, Fault> {
         let mut c = Compact { bytes, at: 0 };
@@ -137,7 +147,7 @@ impl PageHeader {
                 (1, I32) => header.kind = c.int()?,
                 (2, I32) => header.uncompressed = c.int()?,
                 (3, I32) => header.compressed = c.int()?,
-                (5 | 7, STRUCT) => header.values = Some(c.first_int()?),
+                (5 | 7, STRUCT) => c.data_page(&mut header)?,
                 (8, STRUCT) => c.data_page_v2(&mut header)?,
                 _ => c.skip(kind, 0)?,
             }
@@ -321,17 +331,22 @@ impl Compact<'_> {
         Ok(Some((*last, kind)))
     }
 
-    /// A struct whose field 1 is an i32 (`num_values` of a data or
-    /// dictionary page header): that value; the rest skipped.
-    fn first_int(&mut self) -> Result<i32, Fault> {
+    /// A data or dictionary page header: `num_values` (field 1, required),
+    /// the encoding (field 2) and a data page's definition levels' encoding
+    /// (field 3); the rest skipped.
+    fn data_page(&mut self, header: &mut PageHeader) -> Result<(), Fault> {
         let (mut field, mut value) = (0i16, None);
         while let Some((id, kind)) = self.field_header(&mut field)? {
             match (id, kind) {
                 (1, I32) => value = Some(self.int()?),
+                (2, I32) => header.encoding = self.int()?,
+                (3, I32) => header.level_encoding = self.int()?,
                 _ => self.skip(kind, 1)?,
             }
         }
-        value.ok_or(Malformed("a page header without its number of values"))
+        let value = value.ok_or(Malformed("a page header without its number of values"))?;
+        header.values = Some(value);
+        Ok(())
     }
 
     fn data_page_v2(&mut self, header: &mut PageHeader) -> Result<(), Fault> {
@@ -341,6 +356,7 @@ impl Compact<'_> {
                 (1, I32) => header.values = Some(self.int()?),
                 (2, I32) => header.nulls = self.int()?,
                 (3, I32) => header.rows = self.int()?,
+                (4, I32) => header.encoding = self.int()?,
                 (5, I32) => header.levels[0] = self.int()?,
                 (6, I32) => header.levels[1] = self.int()?,
                 _ => self.skip(kind, 1)?,

@@ -4,5 +4,6 @@ mod ingest;
 mod log_fixtures;
 mod log_props;
 mod log_streams;
+mod plain_rows;
 mod stream;
 mod text_forms;
