@@ -9,14 +9,17 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
 use vocabulary::model::{
-    ClockInterval, CommandEstimate, Expectation, Guard, LearnSettings, MODEL_VERSION, Model,
-    ModelClock, PartModel, Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule,
-    StateModel, TransitionModel, edge_name,
+    ClockInterval, CommandEstimate, Expectation, LearnSettings, MODEL_VERSION, Model, ModelClock,
+    PartModel, Provenance, SensorClass, SensorEstimate, SensorKind, SensorSchedule, StateModel,
+    TransitionModel, edge_name,
 };
 use vocabulary::{Located, Plant, SignalKind, Time};
 
 use crate::replay::PartRoutes;
+use hist::{Distribution, Hist};
 use logs::LogStream;
+
+mod hist;
 
 /// Settings of learning.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -216,7 +219,7 @@ impl<'p> Learner<'p> {
             let act = p.act_mask();
             p.trans.iter().filter(move |t| t.changed & !act != 0)
         }) {
-            let h = &acc.command;
+            let h = acc.command.distribution();
             let means = h.log_means();
             if means.len() < 2 || h.n < self.options.min_samples || !h.tight(&self.options) {
                 continue;
@@ -246,8 +249,7 @@ impl<'p> Learner<'p> {
 
 // ----- statistics -----
 
-/// A cheap hasher for small integer keys (durations, state vectors): the learning
-/// pass hashes on every event.
+/// A cheap hasher for small integer keys (state vectors, edge counts).
 #[derive(Default)]
 struct IntHasher(u64);
 
@@ -270,9 +272,6 @@ impl Hasher for IntHasher {
 
 type FastMap<K, V> = HashMap<K, V, BuildHasherDefault<IntHasher>>;
 
-/// Most distinct durations a histogram keeps before it coarsens its bins.
-const MAX_BINS: usize = 4096;
-
 /// How a learned interval is widened into a guard.
 #[derive(Debug, Clone, Copy)]
 struct Widening {
@@ -281,172 +280,6 @@ struct Widening {
     /// The drift between runs to cover: relative standard deviation times the
     /// number of deviations ([`LearnOptions::drift`]).
     drift: f64,
-}
-
-/// Fewest samples of one log for its mean duration to count in the drift
-/// between logs.
-const MIN_LOG_SAMPLES: u64 = 5;
-
-/// A histogram of durations, exact while they take few distinct values (PLC logs
-/// are quantised by the scan period); beyond [`MAX_BINS`] values it merges bins
-/// pairwise, so quantiles stay within one bin width. It also keeps each log's
-/// sample count and sum, for the drift between logs.
-#[derive(Debug, Clone, Default)]
-struct Hist {
-    bins: FastMap<i64, u64>,
-    n: u64,
-    shift: u32,
-    /// Per log (by index): samples and their sum.
-    logs: Vec<(u64, i128)>,
-}
-
-impl Hist {
-    fn add(&mut self, d: Time, log: usize) {
-        if self.logs.len() <= log {
-            self.logs.resize(log + 1, (0, 0));
-        }
-        self.logs[log].0 += 1;
-        self.logs[log].1 += i128::from(d);
-        *self.bins.entry(d >> self.shift).or_insert(0) += 1;
-        self.n += 1;
-        if self.bins.len() > MAX_BINS {
-            self.shift += 1;
-            let old = std::mem::take(&mut self.bins);
-            for (k, c) in old {
-                *self.bins.entry(k >> 1).or_insert(0) += c;
-            }
-        }
-    }
-
-    /// The mean duration of each log with at least [`MIN_LOG_SAMPLES`] samples.
-    fn log_means(&self) -> Vec<f64> {
-        self.logs
-            .iter()
-            .filter(|(n, _)| *n >= MIN_LOG_SAMPLES)
-            .map(|&(n, sum)| sum as f64 / n as f64)
-            .collect()
-    }
-
-    /// Whether the durations keep close together (the learner's test of a
-    /// timed transition): a spread of at most `timed_spread`, or at most
-    /// `timed_relative` of the median.
-    fn tight(&self, options: &LearnOptions) -> bool {
-        let s = self.sorted();
-        let q = |p: f64| Hist::quantile(&s, self.n, p) as f64;
-        let spread = q(0.99) - q(0.01);
-        spread <= options.timed_spread as f64 || spread <= options.timed_relative * q(0.5)
-    }
-
-    /// Whether the outermost durations stay near the bulk: at most three times
-    /// its spread (or two `margin`s, the scan's jitter) beyond `q01`–`q99`.
-    /// Far outliers mean something outside the part sometimes holds the motion
-    /// back (a starved conveyor, the next machine): its time is then the
-    /// product flow's, not the part's own.
-    fn light_tails(&self, margin: Time) -> bool {
-        let s = self.sorted();
-        let q = |p: f64| Hist::quantile(&s, self.n, p);
-        let (min, max) = (s.first().map_or(0, |x| x.0), s.last().map_or(0, |x| x.0));
-        let reach = 3 * (q(0.99) - q(0.01)).max(2 * margin);
-        q(0.01) - min <= reach && max - q(0.99) <= reach
-    }
-
-    /// How far beyond its learned logs' means, below and above, a new run's mean
-    /// may land: `reach` (relative drift times deviations) around their mean,
-    /// scaled for the few logs it is estimated from. A transition seen often
-    /// in one log only still drifts as much as the plant's others: its mean over
-    /// every sample stands for that one log's.
-    fn drift_reach(&self, reach: f64) -> (f64, f64) {
-        let mut means = self.log_means();
-        if means.len() < 2 {
-            let sum: i128 = self.logs.iter().map(|&(_, s)| s).sum();
-            means = vec![sum as f64 / self.n.max(1) as f64];
-        }
-        if self.n == 0 || reach <= 0.0 {
-            return (0.0, 0.0);
-        }
-        let k = means.len() as f64;
-        let mean = means.iter().sum::<f64>() / k;
-        let half = reach * mean * (1.0 + 1.0 / k).sqrt();
-        let (lo, hi) = means
-            .iter()
-            .fold((f64::MAX, f64::MIN), |(lo, hi), &m| (lo.min(m), hi.max(m)));
-        ((lo - (mean - half)).max(0.0), (mean + half - hi).max(0.0))
-    }
-
-    fn sorted(&self) -> Vec<(i64, u64)> {
-        let mut v: Vec<(i64, u64)> = self
-            .bins
-            .iter()
-            .map(|(&k, &c)| (k << self.shift, c))
-            .collect();
-        v.sort_unstable();
-        v
-    }
-
-    /// The sample of rank `k` (0 is the smallest).
-    fn nth(sorted: &[(i64, u64)], k: u64) -> i64 {
-        let mut acc = 0;
-        for &(v, c) in sorted {
-            acc += c;
-            if acc > k {
-                return v;
-            }
-        }
-        sorted.last().map_or(0, |&(v, _)| v)
-    }
-
-    /// The smallest sample `x` with at least `p·n` samples at or below it.
-    fn quantile(sorted: &[(i64, u64)], n: u64, p: f64) -> i64 {
-        let want = ((p * n as f64).ceil() as u64).max(1);
-        let mut acc = 0;
-        for &(v, c) in sorted {
-            acc += c;
-            if acc >= want {
-                return v;
-            }
-        }
-        sorted.last().map_or(0, |&(v, _)| v)
-    }
-
-    fn guard(&self, options: &LearnOptions, widening: Widening, scale: f64) -> Guard {
-        let s = self.sorted();
-        let n = self.n;
-        let min = s.first().map_or(0, |&(v, _)| v);
-        let max = s.last().map_or(0, |&(v, _)| v + (1 << self.shift) - 1);
-        let q = |p: f64| Hist::quantile(&s, n, p);
-        let (lo, hi) = if options.trim > 0.0 {
-            (q(options.trim), q(1.0 - options.trim))
-        } else {
-            // A fresh log's extremes land beyond the learned ones about as far
-            // as the learned tails reach past their last percent: each side
-            // is widened by that reach (nothing, where the samples bunch).
-            let k = (n / 100).max(1);
-            (
-                min - (Hist::nth(&s, k) - min),
-                max + (max - Hist::nth(&s, n.saturating_sub(1 + k))),
-            )
-        };
-        let widen = widening.margin as f64 + options.margin_relative * (hi - lo) as f64;
-        let (below, above) = self.drift_reach(widening.drift);
-        Guard {
-            n,
-            min: min as f64 / scale,
-            q01: q(0.01) as f64 / scale,
-            q50: q(0.5) as f64 / scale,
-            q99: q(0.99) as f64 / scale,
-            max: max as f64 / scale,
-            lo: ((lo as f64 - widen - below).max(0.0)) / scale,
-            hi: (hi as f64 + widen + above) / scale,
-        }
-    }
-
-    fn width(&self) -> i64 {
-        let s = self.sorted();
-        match (s.first(), s.last()) {
-            (Some(a), Some(b)) => b.0 - a.0,
-            _ => i64::MAX,
-        }
-    }
 }
 
 #[derive(Debug, Clone)]
@@ -459,6 +292,10 @@ struct TransAcc {
     command: Hist,
     /// One histogram per reference edge (bit · 2 + rising) of the part.
     refs: Vec<Hist>,
+    /// The reference edges (bit `r` for `refs[r]`) that preceded every
+    /// occurrence so far: the others can never be the clock, and their
+    /// histograms are left alone.
+    candidates: u128,
 }
 
 /// Edges of one sensor after one command, up to the next command.
@@ -466,22 +303,28 @@ struct TransAcc {
 struct EstAcc {
     episodes: u64,
     v0_ones: u64,
-    /// Episodes by number of edges.
-    counts: FastMap<usize, u64>,
+    /// Episodes by number of edges, in the order the numbers first came (the
+    /// order of insertion into the map that [`schedule`] reads).
+    counts: Vec<(usize, u64)>,
     /// For the k-th edge (k < 4): min and max time since the command.
     kth: [(Time, Time, u64); 4],
     /// Longest episode with exactly c edges (c < 4): was it cut short by the next command?
     longest_with: [Time; 4],
 }
 
+/// The time from one command to the next, as the part's sensors saw it. One
+/// value per part, reused by every command: commands are frequent.
 #[derive(Debug, Clone)]
 struct Episode {
+    /// Whether a command opened it and it has not been closed yet.
+    open: bool,
     act: u64,
     t0: Time,
     /// Sensor bits at the end of the command's scan.
     v0: u64,
-    /// Per sensor bit: edge times since t0 (at most 4 kept) and edge count.
-    edges: Vec<(Vec<Time>, usize)>,
+    /// Per sensor bit: its edge count and the times since t0 of its first
+    /// edges (the first `min(count, 4)` are set).
+    edges: Vec<(usize, [Time; 4])>,
 }
 
 struct PartLearner {
@@ -494,10 +337,15 @@ struct PartLearner {
     /// Last time of each edge, indexed bit · 2 + rising.
     last_edge: Vec<Option<Time>>,
     state_ids: FastMap<u64, usize>,
+    /// By state id: the state vector and its visits.
     states: Vec<(u64, u64)>,
-    trans_ids: FastMap<(u64, u64), usize>,
+    /// By state id: the transitions out of the state, as (target vector,
+    /// index in `trans`). A state has few: a scan is cheaper than hashing.
+    out: Vec<Vec<(u64, usize)>>,
+    /// The id of the state the part is in.
+    current: usize,
     trans: Vec<TransAcc>,
-    episode: Option<Episode>,
+    episode: Episode,
     /// Actuator states in order of first command, with their per-sensor statistics.
     est: Vec<(u64, Vec<EstAcc>)>,
 }
@@ -514,9 +362,16 @@ impl PartLearner {
             last_edge: vec![None; 2 * n],
             state_ids: FastMap::default(),
             states: Vec::new(),
-            trans_ids: FastMap::default(),
+            out: Vec::new(),
+            current: 0,
             trans: Vec::new(),
-            episode: None,
+            episode: Episode {
+                open: false,
+                act: 0,
+                t0: 0,
+                v0: 0,
+                edges: vec![(0, [0; 4]); n - n_act],
+            },
             est: Vec::new(),
         }
     }
@@ -535,6 +390,7 @@ impl PartLearner {
         }
         let id = self.states.len();
         self.states.push((v, 0));
+        self.out.push(Vec::new());
         self.state_ids.insert(v, id);
         id
     }
@@ -543,9 +399,10 @@ impl PartLearner {
         self.log = log;
         self.origin = None;
         self.last_edge.iter_mut().for_each(|e| *e = None);
-        self.episode = None;
+        self.episode.open = false;
         let id = self.state_id(state);
         self.states[id].1 += 1;
+        self.current = id;
     }
 
     fn end_log(&mut self, t: Time) {
@@ -554,88 +411,110 @@ impl PartLearner {
 
     fn transition(&mut self, t: Time, from_vec: u64, changed: u64) {
         let to_vec = from_vec ^ changed;
-        let from = self.state_id(from_vec);
-        let to = self.state_id(to_vec);
-        self.states[to].1 += 1;
-        let n = self.names.len();
-        let idx = match self.trans_ids.get(&(from_vec, to_vec)) {
-            Some(&i) => i,
-            None => {
-                let i = self.trans.len();
-                self.trans.push(TransAcc {
-                    from,
-                    to,
-                    changed,
-                    to_vec,
-                    count: 0,
-                    command: Hist::default(),
-                    refs: vec![Hist::default(); 2 * n],
-                });
-                self.trans_ids.insert((from_vec, to_vec), i);
-                i
-            }
+        // The part leaves the state it is in; the lookup is for safety only.
+        let from = match self.states.get(self.current) {
+            Some(&(v, _)) if v == from_vec => self.current,
+            _ => self.state_id(from_vec),
+        };
+        let idx = match self.out[from].iter().find(|&&(v, _)| v == to_vec) {
+            Some(&(_, i)) => i,
+            None => self.new_transition(from, from_vec, changed),
         };
         let acc = &mut self.trans[idx];
+        self.current = acc.to;
+        self.states[acc.to].1 += 1;
         acc.count += 1;
         if let Some(o) = self.origin {
             acc.command.add(t - o, self.log);
         }
-        for (r, last) in self.last_edge.iter().enumerate() {
-            if let Some(l) = last {
-                acc.refs[r].add(t - l, self.log);
+        let mut candidates = acc.candidates;
+        while candidates != 0 {
+            let r = candidates.trailing_zeros() as usize;
+            match self.last_edge[r] {
+                Some(l) => acc.refs[r].add(t - l, self.log),
+                None => acc.candidates &= !(1 << r),
             }
+            candidates &= candidates - 1;
         }
-        for bit in 0..n {
-            if changed >> bit & 1 == 1 {
-                let rising = to_vec >> bit & 1 == 1;
-                self.last_edge[2 * bit + usize::from(rising)] = Some(t);
-            }
+        let mut bits = changed;
+        while bits != 0 {
+            let bit = bits.trailing_zeros() as usize;
+            let rising = to_vec >> bit & 1 == 1;
+            self.last_edge[2 * bit + usize::from(rising)] = Some(t);
+            bits &= bits - 1;
         }
-
-        let command = changed & self.act_mask() != 0;
-        if command {
+        if changed & self.act_mask() != 0 {
             self.close_episode(t);
             self.origin = Some(t);
-            let sensors = n - self.n_act;
-            self.episode = Some(Episode {
-                act: to_vec & self.act_mask(),
-                t0: t,
-                v0: to_vec >> self.n_act,
-                edges: vec![(Vec::new(), 0); sensors],
-            });
-        } else if let Some(ep) = &mut self.episode {
-            let sensor_changes = changed >> self.n_act;
-            for (s, (times, count)) in ep.edges.iter_mut().enumerate() {
-                if sensor_changes >> s & 1 == 1 {
-                    if times.len() < 4 {
-                        times.push(t - ep.t0);
-                    }
-                    *count += 1;
+            let (act, v0) = (to_vec & self.act_mask(), to_vec >> self.n_act);
+            let ep = &mut self.episode;
+            (ep.open, ep.act, ep.t0, ep.v0) = (true, act, t, v0);
+            ep.edges.iter_mut().for_each(|(count, _)| *count = 0);
+        } else if self.episode.open {
+            let ep = &mut self.episode;
+            let mut sensor_changes = changed >> self.n_act;
+            while sensor_changes != 0 {
+                let (count, times) = &mut ep.edges[sensor_changes.trailing_zeros() as usize];
+                if *count < times.len() {
+                    times[*count] = t - ep.t0;
                 }
+                *count += 1;
+                sensor_changes &= sensor_changes - 1;
             }
         }
     }
 
-    fn close_episode(&mut self, t: Time) {
-        let Some(ep) = self.episode.take() else {
-            return;
+    /// Adds the transition from state `from` (vector `from_vec`) by the edges
+    /// `changed`; returns its index.
+    fn new_transition(&mut self, from: usize, from_vec: u64, changed: u64) -> usize {
+        let to_vec = from_vec ^ changed;
+        let to = self.state_id(to_vec);
+        let i = self.trans.len();
+        // Only a sensor edge may take another edge as its clock.
+        let (refs, candidates) = if changed & !self.act_mask() != 0 {
+            let n = 2 * self.names.len();
+            (vec![Hist::default(); n], u128::MAX >> (128 - n))
+        } else {
+            (Vec::new(), 0)
         };
-        let sensors = self.names.len() - self.n_act;
+        self.trans.push(TransAcc {
+            from,
+            to,
+            changed,
+            to_vec,
+            count: 0,
+            command: Hist::default(),
+            refs,
+            candidates,
+        });
+        self.out[from].push((to_vec, i));
+        i
+    }
+
+    fn close_episode(&mut self, t: Time) {
+        let ep = &mut self.episode;
+        if !ep.open {
+            return;
+        }
+        ep.open = false;
         let slot = match self.est.iter().position(|(a, _)| *a == ep.act) {
             Some(i) => i,
             None => {
-                self.est.push((ep.act, vec![EstAcc::default(); sensors]));
+                self.est
+                    .push((ep.act, vec![EstAcc::default(); ep.edges.len()]));
                 self.est.len() - 1
             }
         };
         let duration = t - ep.t0;
-        for (s, (times, count)) in ep.edges.iter().enumerate() {
-            let acc = &mut self.est[slot].1[s];
+        for (s, ((count, times), acc)) in ep.edges.iter().zip(&mut self.est[slot].1).enumerate() {
+            let count = *count;
             acc.episodes += 1;
             acc.v0_ones += ep.v0 >> s & 1;
-            *acc.counts.entry(*count).or_insert(0) += 1;
-            for (k, &tau) in times.iter().enumerate() {
-                let e = &mut acc.kth[k];
+            match acc.counts.iter_mut().find(|(c, _)| *c == count) {
+                Some((_, n)) => *n += 1,
+                None => acc.counts.push((count, 1)),
+            }
+            for (e, &tau) in acc.kth.iter_mut().zip(&times[..count.min(4)]) {
                 if e.2 == 0 {
                     *e = (tau, tau, 1);
                 } else {
@@ -644,8 +523,8 @@ impl PartLearner {
                     e.2 += 1;
                 }
             }
-            if *count < 4 {
-                acc.longest_with[*count] = acc.longest_with[*count].max(duration);
+            if count < 4 {
+                acc.longest_with[count] = acc.longest_with[count].max(duration);
             }
         }
     }
@@ -732,21 +611,24 @@ impl PartLearner {
         let sensed = acc.changed & !self.act_mask() != 0;
         // The clock: the command clock, unless an edge of the part that
         // preceded every occurrence gives a much tighter interval.
-        let command_width = acc.command.width();
-        let best_ref = acc
+        let command_hist = acc.command.distribution();
+        let command_width = command_hist.width();
+        let refs: Vec<(usize, Distribution)> = acc
             .refs
             .iter()
             .enumerate()
             .filter(|(_, h)| h.n >= options.min_samples && h.n == acc.count)
-            .min_by_key(|(_, h)| h.width());
+            .map(|(r, h)| (r, h.distribution()))
+            .collect();
+        let best_ref = refs.iter().min_by_key(|(_, h)| h.width());
         let use_ref = sensed
             && best_ref.is_some_and(|(_, h)| {
-                acc.command.n < acc.count
+                command_hist.n < acc.count
                     || (h.width() as f64) <= options.tight_ratio * command_width as f64
             });
         let (clock, hist) = match best_ref {
-            Some((r, h)) if use_ref => (self.ref_name(r), h),
-            _ => (ModelClock::Command.to_string(), &acc.command),
+            Some((r, h)) if use_ref => (self.ref_name(*r), h),
+            _ => (ModelClock::Command.to_string(), &command_hist),
         };
         if hist.n == 0 {
             untimed.push(format!(
@@ -773,8 +655,8 @@ impl PartLearner {
                 guard.q01, guard.q99
             ));
         }
-        let command_guard = if clock != ModelClock::Command.to_string() && acc.command.n > 0 {
-            Some(acc.command.guard(options, widening, scale))
+        let command_guard = if clock != ModelClock::Command.to_string() && command_hist.n > 0 {
+            Some(command_hist.guard(options, widening, scale))
         } else {
             None
         };
@@ -1146,21 +1028,26 @@ fn schedule(acc: &EstAcc) -> Result<Schedule, String> {
     if acc.episodes == 0 {
         return Err("never commanded".into());
     }
+    // Which disagreement is reported follows the order of a map filled one
+    // number at a time, as they first came (no capacity reserved ahead).
+    let mut counts: FastMap<usize, u64> = FastMap::default();
+    for &(c, n) in &acc.counts {
+        counts.insert(c, n);
+    }
     if acc.v0_ones != 0 && acc.v0_ones != acc.episodes {
         return Err(format!(
             "its value at the command varies ({} of {} episodes at 1)",
             acc.v0_ones, acc.episodes
         ));
     }
-    let (&k, _) = acc
-        .counts
+    let (&k, _) = counts
         .iter()
         .max_by_key(|&(&c, &n)| (n, std::cmp::Reverse(c)))
         .ok_or("no episode")?;
     if k >= 4 {
         return Err(format!("it changes {k} times per command"));
     }
-    for (&c, &n) in &acc.counts {
+    for (&c, &n) in &counts {
         if c > k || (c < k && c < 4 && acc.longest_with[c] >= acc.kth[c].0) {
             return Err(format!(
                 "the number of its edges per command varies ({n} of {} episodes with {c} instead of {k}): it follows the product flow",
