@@ -8,6 +8,12 @@
 //! the line keeps running, so nearly the whole log goes through the diagnosers
 //! after detection.
 //!
+//! Each log is replayed by the plant diagnoser that `monitor` runs (every
+//! part fed event by event, `NAME`), and by the replay by part that
+//! `diagnose` runs, in batches of 65 536 events as a log is read, on one
+//! thread (`NAME_partwise_1`, the one-core figure) and on two
+//! (`NAME_partwise_2`).
+//!
 //! Run with `cargo bench --bench diagnose`.
 
 use std::hint::black_box;
@@ -16,7 +22,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use datasets::inject::{FaultSpec, Injection};
 use datasets::sim::{MemorySink, SimConfig};
 use datasets::sorting::{plant, simulate_in_memory};
-use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
+use diagnoser::diagnosis::{DiagnoserOptions, PartwiseReplay, PlantDiagnoser, Verdict};
 use diagnoser::model::Model;
 use diagnoser::{MS, Plant, SECOND, Time, TimeFormat};
 use learning::learn::{LearnOptions, Learner};
@@ -76,6 +82,22 @@ fn replay(diagnoser: &mut PlantDiagnoser, log: &MemorySink) -> u64 {
     verdicts
 }
 
+/// Replays `log` by part, in batches as a log is read; returns the verdicts.
+fn replay_by_part(replay: &mut PartwiseReplay, log: &MemorySink) -> u64 {
+    let mut verdicts = 0u64;
+    let mut out = |v: Verdict| {
+        black_box(&v);
+        verdicts += 1;
+    };
+    replay.start(log.start, &log.initial);
+    for batch in log.events.chunks(65_536) {
+        replay.push_batch(batch, &mut out);
+    }
+    let end = log.events.last().map_or(log.start, |e| e.t);
+    black_box(replay.finish(end, &mut out));
+    verdicts
+}
+
 fn diagnose(c: &mut Criterion) {
     let plant = plant();
     let model = learn(&plant);
@@ -106,6 +128,15 @@ fn diagnose(c: &mut Criterion) {
         );
         group.throughput(Throughput::Elements(log.events.len() as u64));
         group.bench_function(*name, |b| b.iter(|| replay(&mut diagnoser, log)));
+        for threads in [1, 2] {
+            let diagnoser =
+                PlantDiagnoser::new(&plant, &model, &options).expect("model fits the plant");
+            let mut partwise = PartwiseReplay::new(diagnoser, threads);
+            replay_by_part(&mut partwise, log);
+            group.bench_function(format!("{name}_partwise_{threads}"), |b| {
+                b.iter(|| replay_by_part(&mut partwise, log))
+            });
+        }
         // From a fresh diagnoser: includes building the automaton.
         group.bench_function(format!("{name}_cold"), |b| {
             b.iter(|| {

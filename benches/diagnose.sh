@@ -4,6 +4,9 @@
 #
 # Usage: bash benches/diagnose.sh [WORKDIR]
 #   HOURS="100 1000 5000"  simulated hours of the normal logs (default)
+#   RUNS=3                 runs of each measurement; the table gives the median
+#                          wall time and the largest peak sizes
+#   THREADS=""             `--threads` of diagnose (default: the machine's cores)
 #   FAULTY="1000"          simulated hours of logs with F7 (unexpected rises of C4)
 #                          from minute 10, after which the line keeps running;
 #                          empty for none
@@ -19,6 +22,9 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 hours=${HOURS:-100 1000 5000}
+runs=${RUNS:-3}
+threads=()
+[ -n "${THREADS:-}" ] && threads=(--threads "$THREADS")
 faulty=${FAULTY-1000}
 if [ $# -ge 1 ]; then
   work=$1
@@ -71,19 +77,31 @@ anon() {
 }
 
 rows=()
-# measure NAME FILE: one row of the table.
-measure() {
+# once NAME FILE: one run; prints "wall rss anon".
+once() {
   local dir=$work/$1 log=$2
-  local events=$(($(wc -l <"$dir/events.csv") - 1))
-  /usr/bin/time -v -o "$work/time.txt" "$g" diagnose --plant "$plant" \
+  /usr/bin/time -v -o "$work/time.txt" "$g" diagnose "${threads[@]}" --plant "$plant" \
     --model "$work/model.json" "$dir/$log" >"$work/verdicts.jsonl" &
   local pid=$!
   local anon
   anon=$(anon "$pid")
   wait "$pid"
-  local wall rss verdicts
-  wall=$(seconds "$(sed -n 's/.*Elapsed (wall clock) time.*: //p' "$work/time.txt")")
-  rss=$(sed -n 's/.*Maximum resident set size (kbytes): //p' "$work/time.txt")
+  echo "$(seconds "$(sed -n 's/.*Elapsed (wall clock) time.*: //p' "$work/time.txt")")" \
+    "$(sed -n 's/.*Maximum resident set size (kbytes): //p' "$work/time.txt")" "$anon"
+}
+
+# measure NAME FILE: one row of the table (median wall of $runs runs).
+measure() {
+  local dir=$work/$1 log=$2
+  local events=$(($(wc -l <"$dir/events.csv") - 1))
+  local samples=() wall rss=0 anon=0 w r a verdicts
+  for _ in $(seq "$runs"); do
+    read -r w r a < <(once "$1" "$2")
+    samples+=("$w")
+    [ "$r" -gt "$rss" ] && rss=$r
+    [ "$a" -gt "$anon" ] && anon=$a
+  done
+  wall=$(printf '%s\n' "${samples[@]}" | sort -g | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }')
   verdicts=$(wc -l <"$work/verdicts.jsonl")
   rows+=("$(awk -v n="$1/$log" -v e="$events" -v w="$wall" -v r="$rss" -v a="$anon" -v v="$verdicts" \
     'BEGIN { printf "%-30s %11d %7.2f %11.0f %9.1f %9.1f %8d", n, e, w, (w > 0 ? e / w : 0), r / 1024, a / 1024, v }')")

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use diagnoser::diagnosis::DiagnoserOptions;
-use diagnoser::{Plant, Time, TimeUnit, time};
+use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use filter_coupling::filter::Coupling;
 use logs::{IngestOptions, LogFormat};
 
@@ -20,6 +20,8 @@ pub struct ReplayArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Logs to replay (any form); each is replayed from its own initial values.
+    /// A directory stands for the logs in it (`.csv`, `.parquet`, `.log`,
+    /// `.vcd`), by name.
     #[arg(required = true, value_name = "LOG")]
     pub logs: Vec<PathBuf>,
     /// Log form (default: detected from each file's header): events-csv,
@@ -65,17 +67,22 @@ impl ReplayArgs {
         self.end.map(|e| (e * unit.nanos() as f64).round() as Time)
     }
 
+    /// The log files, directories replaced by the logs in them.
+    pub fn log_files(&self) -> Result<Vec<PathBuf>, Failure> {
+        logs::expand_dirs(&self.logs).map_err(Failure::bad)
+    }
+
     /// What the report replays: these files, read and diagnosed as `diagnose`
     /// does.
-    pub fn for_report(&self, plant: &Plant) -> report::Replay {
-        report::Replay {
+    pub fn for_report(&self, plant: &Plant) -> Result<report::Replay, Failure> {
+        Ok(report::Replay {
             plant_path: self.plant.clone(),
             model_path: self.model.clone(),
-            logs: self.logs.clone(),
+            logs: self.log_files()?,
             ingest: self.ingest(plant),
             options: self.options(),
             end: self.end(plant),
-        }
+        })
     }
 }
 

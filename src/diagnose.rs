@@ -4,11 +4,11 @@ use std::io::{BufWriter, IsTerminal, Write};
 use std::path::PathBuf;
 
 use clap::Args;
-use diagnoser::diagnosis::{PartSummary, PlantDiagnoser, Verdict, VerdictKind};
+use diagnoser::diagnosis::{PartSummary, PartwiseReplay, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, TimeFormat};
 use indicatif::{ProgressBar, ProgressStyle};
-use logs::open;
+use logs::open_ahead;
 
 use crate::args::ReplayArgs;
 
@@ -25,6 +25,10 @@ pub struct DiagnoseArgs {
     /// this file.
     #[arg(long, value_name = "FILE")]
     report: Option<PathBuf>,
+    /// Threads that run the parts' diagnosers side by side (default: the
+    /// machine's cores). The verdict lines are the same whatever the number.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
+    threads: Option<u16>,
 }
 
 /// Runs `gardefou diagnose`.
@@ -32,14 +36,21 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     let replay = &args.replay;
     let plant = Plant::from_path(&replay.plant).map_err(Failure::bad)?;
     let model = Model::from_path(&replay.model).map_err(Failure::bad)?;
-    let mut diagnoser = PlantDiagnoser::new(&plant, &model, &replay.options())
+    let diagnoser = PlantDiagnoser::new(&plant, &model, &replay.options())
         .map_err(|e| Failure::bad(format!("{}: {e}", replay.model.display())))?;
+    let threads = args.threads.map_or_else(
+        || std::thread::available_parallelism().map_or(1, usize::from),
+        usize::from,
+    );
+    let mut diagnoser = PartwiseReplay::new(diagnoser, threads);
     let ingest = replay.ingest(&plant);
     let bar = if std::io::stderr().is_terminal() {
         let bar = ProgressBar::new_spinner();
         bar.set_style(
-            ProgressStyle::with_template("{spinner} diagnosing: {human_pos} events ({per_sec})")
-                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+            ProgressStyle::with_template(
+                "{spinner} diagnosing: {human_pos} events ({per_sec}) {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
         );
         bar
     } else {
@@ -47,10 +58,16 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     };
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
-    let several = replay.logs.len() > 1;
+    let paths = replay.log_files()?;
+    let several = paths.len() > 1;
+    let count = paths.len();
     let mut summaries: Vec<(String, TimeFormat, Vec<PartSummary>)> = Vec::new();
-    for path in &replay.logs {
-        let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
+    let mut read = 0u64;
+    for (k, (path, stream)) in open_ahead(paths, &plant, &ingest).enumerate() {
+        let stream = stream.map_err(Failure::bad)?;
+        if several {
+            bar.set_message(format!("log {} of {count}", k + 1));
+        }
         let time = stream.time;
         let name = path.display().to_string();
         let log = several.then_some(name.as_str());
@@ -65,12 +82,9 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
         };
         diagnoser.start(stream.start, &stream.initial);
         let mut last = stream.start;
-        let mut read = 0u64;
         for batch in stream.batches {
             let batch = batch.map_err(Failure::bad)?;
-            for &e in &batch {
-                diagnoser.push(e, &mut emit);
-            }
+            diagnoser.push_batch(&batch, &mut emit);
             if let Some(e) = batch.last() {
                 last = e.t;
             }
@@ -95,7 +109,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     }
     if let Some(path) = &args.report {
         let request = report::Request {
-            replay: replay.for_report(&plant),
+            replay: replay.for_report(&plant)?,
             coupling: filter_coupling::filter::Coupling::Flags,
             layout: Some(report::pictures::Layout::Auto),
         };

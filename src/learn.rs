@@ -21,7 +21,9 @@ pub struct LearnArgs {
     /// Plant file: signals and parts (with --suggest-parts, only the signals).
     #[arg(long)]
     plant: PathBuf,
-    /// Logs of normal operation (any form; several are combined).
+    /// Logs of normal operation (any form; several are combined). A
+    /// directory stands for the logs in it (`.csv`, `.parquet`, `.log`,
+    /// `.vcd`), by name.
     #[arg(required = true, value_name = "LOG")]
     logs: Vec<PathBuf>,
     /// Where to write the model (`-`: standard output, the learning report then
@@ -98,10 +100,11 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         ..IngestOptions::default()
     };
     let bar = progress_bar();
+    let paths = logs::expand_dirs(&args.logs).map_err(Failure::bad)?;
 
     if args.suggest_parts {
         let mut streams = Vec::new();
-        for path in &args.logs {
+        for path in &paths {
             streams.push(open(path, &plant, &ingest).map_err(Failure::bad)?);
         }
         let suggestion = suggest_parts(&plant.signals, streams, &SuggestOptions::default())
@@ -121,8 +124,8 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
     };
     let mut learner = Learner::new(&plant, options).map_err(Failure::bad)?;
     let mut total = 0u64;
-    for path in &args.logs {
-        let stream = open(path, &plant, &ingest).map_err(Failure::bad)?;
+    for (_, stream) in logs::open_ahead(paths, &plant, &ingest) {
+        let stream = stream.map_err(Failure::bad)?;
         let before = total;
         learner
             .learn_log(stream, |n| {

@@ -46,7 +46,7 @@ pub fn run(args: ReportArgs) -> Result<(), Failure> {
     let plant = Plant::from_path(&args.replay.plant).map_err(Failure::bad)?;
     let model = Model::from_path(&args.replay.model).map_err(Failure::bad)?;
     let request = report::Request {
-        replay: args.replay.for_report(&plant),
+        replay: args.replay.for_report(&plant)?,
         coupling: args.coupling.into(),
         layout: match args.layout {
             LayoutArg::Auto => Some(Layout::Auto),

@@ -58,7 +58,7 @@ pub fn pictures(
 ) -> Result<Vec<PartPictures>, String> {
     let diagnoser = PlantDiagnoser::new(plant, model, options)?;
     let mut out = Vec::new();
-    for (k, engine) in diagnoser.engines().iter().enumerate() {
+    for (k, engine) in diagnoser.engines().enumerate() {
         let name = engine.part.name.clone();
         let learned = match model.parts.iter().find(|p| p.name == name) {
             Some(pm) => Some(pictures::render(

@@ -1585,7 +1585,6 @@ mod tests {
             .unwrap_or_else(|e| panic!("{e}"));
         let mut engine = diagnoser
             .engines()
-            .iter()
             .find(|e| e.part.name == part)
             .expect("the part has a diagnoser")
             .clone();

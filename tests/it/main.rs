@@ -27,6 +27,7 @@ mod monitor_can;
 mod monitor_cli;
 mod netfault;
 mod probing;
+mod replay_identity;
 mod report_browser;
 mod report_cli;
 mod shipped_datasets;

@@ -8,6 +8,8 @@
 //!   built on the fly and memoised, so a replay is a table lookup per scan.
 //! - [`run`]: every part's diagnoser fed with a plant's events, giving the
 //!   verdict changes of SPEC §3.
+//! - [`partwise`]: the same over a recorded log, each part on its own
+//!   events, on several threads, with the same output.
 //! - [`verdict`]: a part's verdict and its JSON line.
 //! - [`fusion`]: the coordinator, combining the parts' verdicts into a plant view.
 //!
@@ -22,10 +24,13 @@ pub mod engine;
 mod explain;
 pub mod fusion;
 pub mod part;
+mod part_run;
+pub mod partwise;
 pub mod run;
 pub mod verdict;
 
 pub use engine::{Engine, Labels};
 pub use part::{Hypothesis, ModeKind, PartDiagnoser};
+pub use partwise::PartwiseReplay;
 pub use run::{DiagnoserOptions, PartSummary, PlantDiagnoser};
 pub use verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};

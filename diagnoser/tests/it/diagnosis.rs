@@ -72,7 +72,6 @@ fn turntable_engine() -> Engine {
     let (plant, model) = setup();
     let d = PlantDiagnoser::new(&plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
     d.engines()
-        .iter()
         .find(|e| e.part.name == "turntable")
         .expect("turntable")
         .clone()

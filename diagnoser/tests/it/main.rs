@@ -3,3 +3,4 @@
 mod diagnosis;
 mod faudes;
 mod faudes_product;
+mod partwise;

@@ -31,7 +31,6 @@ fn engines(plant: &Plant) -> Vec<Engine> {
     PlantDiagnoser::new(plant, &model, &DiagnoserOptions::default())
         .expect("diagnoser")
         .engines()
-        .iter()
         .map(|e| Engine::new(e.part.without_reversals()))
         .collect()
 }

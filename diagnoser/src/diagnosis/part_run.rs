@@ -1,0 +1,456 @@
+//! One part's diagnoser over its own scans and deadlines.
+//!
+//! A part's verdicts depend on its own events and on time only: the plant's
+//! other parts never change them. [`PartRun`] is that part of a replay, with
+//! no notion of the plant; [`super::PlantDiagnoser`] feeds every part with its
+//! scans in time order and combines their verdicts, and
+//! [`super::PartwiseReplay`] runs the parts of a recorded log side by side.
+
+use super::engine::Engine;
+use super::part::{Clock, PartDiagnoser};
+use super::run::PartSummary;
+use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
+use crate::{Flag, Time, TimeUnit};
+
+/// Where a part stands in a replay: what one step may need to undo.
+#[derive(Debug, Clone)]
+struct RunState {
+    state: u32,
+    obs: u32,
+    origins: Vec<Option<Time>>,
+    /// Raised flags, as partition bits (sticky).
+    flags: u32,
+    /// Labels index of the last verdict given.
+    shown: u32,
+    next_timer: Option<Time>,
+    /// The last command's edges, for explanations.
+    last_command: Option<(u32, u32)>,
+    /// First time the verdict left normal.
+    detected: Option<Time>,
+    /// The unknown episode the part is in, if any.
+    episode: Option<Episode>,
+}
+
+/// An unknown episode: from observations that no mode of the part explains
+/// until the part runs a learned cycle again.
+///
+/// `unknown` is not the end of a part's diagnosis. The diagnoser starts again
+/// from what the part reads now, with its clocks unknown, as at a log's start,
+/// and keeps diagnosing. The episode ends, and the part is reported normal
+/// again, once it has come back to the first learned state it was seen in
+/// since, after leaving it: one cycle that the model explains. A fault found
+/// meanwhile is reported, but raises no `def_` flag until the episode is over.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Episode {
+    /// When the observations stopped fitting.
+    since: Time,
+    /// The first learned state the part was seen in after starting again.
+    anchor: Option<u32>,
+    /// Whether it has left the anchor since.
+    left: bool,
+}
+
+impl Episode {
+    /// Notes the observed state `obs` (`learned`: a state of the model); true
+    /// once the part is back in its anchor after leaving it.
+    fn cycled(&mut self, obs: u32, learned: bool) -> bool {
+        match self.anchor {
+            None => {
+                if learned {
+                    self.anchor = Some(obs);
+                }
+                false
+            }
+            Some(a) if a != obs => {
+                self.left = true;
+                false
+            }
+            Some(_) => self.left,
+        }
+    }
+}
+
+/// One part's diagnoser, fed with the part's own scans (the bits that changed)
+/// and the deadlines that pass.
+#[derive(Debug, Clone)]
+pub(crate) struct PartRun {
+    /// The part's diagnoser automaton.
+    pub(crate) engine: Engine,
+    at: RunState,
+    /// Per clock, the bits whose rise and whose fall restart it.
+    restarts: Box<[(u32, u32)]>,
+    unit: TimeUnit,
+    /// See [`super::DiagnoserOptions::polled`].
+    polled: bool,
+    /// Verdict changes given.
+    changes: u64,
+    /// The clocks the last step restarted, with their origins before it, and
+    /// its time: what an explanation reads (as the readings before the step),
+    /// only when a verdict changes.
+    undo: Vec<(u16, Option<Time>)>,
+    before_at: Time,
+    /// Scratch readings.
+    before: Vec<Option<Time>>,
+    after: Vec<Option<Time>>,
+}
+
+impl PartRun {
+    /// A part's run, not started.
+    pub(crate) fn new(engine: Engine, unit: TimeUnit, polled: bool) -> Self {
+        let restarts = restart_masks(&engine.part);
+        PartRun {
+            engine,
+            at: RunState {
+                state: 0,
+                obs: 0,
+                origins: Vec::new(),
+                flags: 0,
+                shown: 0,
+                next_timer: None,
+                last_command: None,
+                detected: None,
+                episode: None,
+            },
+            restarts,
+            unit,
+            polled,
+            changes: 0,
+            undo: Vec::new(),
+            before_at: Time::MIN,
+            before: Vec::new(),
+            after: Vec::new(),
+        }
+    }
+
+    /// Starts a replay with every plant signal's `initial` value. Clocks are
+    /// unknown until their first edge.
+    pub(crate) fn start(&mut self, initial: &[bool]) {
+        let e = &mut self.engine;
+        let obs = e.part.signals.iter().enumerate().fold(0u32, |v, (b, s)| {
+            v | (u32::from(initial.get(s.index()).copied().unwrap_or(false)) << b)
+        });
+        let origins = vec![None; e.part.clocks.len()];
+        let state = e.initial(obs, &origins);
+        let shown = e.state(state).labels;
+        self.at = RunState {
+            state,
+            obs,
+            origins,
+            flags: 0,
+            shown,
+            next_timer: None,
+            last_command: None,
+            detected: None,
+            episode: None,
+        };
+        self.changes = 0;
+    }
+
+    /// The observed state vector.
+    pub(crate) fn obs(&self) -> u32 {
+        self.at.obs
+    }
+
+    /// When time alone next changes the part's state, if ever.
+    #[inline]
+    pub(crate) fn next_timer(&self) -> Option<Time> {
+        self.at.next_timer
+    }
+
+    /// The deadline at `at` (from [`PartRun::next_timer`]) passes.
+    pub(crate) fn fire(&mut self, at: Time) -> Option<Verdict> {
+        self.undo.clear();
+        self.before_at = at;
+        let previous = self.at.state;
+        self.at.state = self.engine.advance_at(self.at.state, &self.at.origins, at);
+        self.at.next_timer = self.engine.next_timer(self.at.state, &self.at.origins, at);
+        // The deadline itself is the last moment the event could still have come.
+        self.settle(at - 1, previous, None)
+    }
+
+    /// The part's scan at `t` changed the bits `changed` (not 0); every
+    /// deadline up to `t` has passed.
+    pub(crate) fn scan(&mut self, t: Time, changed: u32) -> Option<Verdict> {
+        let previous = self.at.state;
+        let obs_before = self.at.obs;
+        // A copy to try again from, only where scans may have merged.
+        let saved = self.polled.then(|| self.at.clone());
+        self.step(t, changed);
+        if let Some(saved) = saved
+            && !self.is_normal()
+            && self.normal(previous)
+        {
+            self.split_step(t, changed, saved);
+        }
+        self.at.next_timer = self.engine.next_timer(self.at.state, &self.at.origins, t);
+        self.settle(t, previous, Some((obs_before, changed)))
+    }
+
+    /// The part's summary at the end of a replay.
+    pub(crate) fn summary(&self) -> PartSummary {
+        let v = self.verdict_of(0, String::new());
+        PartSummary {
+            part: self.engine.part.name.clone(),
+            verdict: v.verdict,
+            labels: v.labels,
+            detected: self.at.detected,
+            flags: v.flags,
+            changes: self.changes,
+        }
+    }
+
+    /// The edges `changed` at `t`: their clocks start, and the state moves on.
+    #[inline]
+    fn step(&mut self, t: Time, changed: u32) {
+        let run = &mut self.at;
+        self.before_at = t;
+        let previous = run.state;
+        let obs_before = run.obs;
+        let after_obs = run.obs ^ changed;
+        let stepped = self.engine.scan_at(previous, changed, &run.origins, t);
+        let (rises, falls) = (changed & after_obs, changed & !after_obs);
+        self.undo.clear();
+        for (c, (origin, &(rise, fall))) in
+            run.origins.iter_mut().zip(self.restarts.iter()).enumerate()
+        {
+            if rises & rise | falls & fall != 0 {
+                self.undo.push((c as u16, *origin));
+                *origin = Some(t);
+            }
+        }
+        run.state = self.engine.advance_at(stepped, &run.origins, t);
+        run.obs = after_obs;
+        let acts = self.engine.part.actuator_mask();
+        if changed & acts != 0 {
+            run.last_command = Some((obs_before, changed & acts));
+        }
+    }
+
+    /// A polled scan that one step does not explain as normal: the orders
+    /// then the sensors, or the sensors then the orders, as two PLC scans
+    /// seen at once. The first split that is normal stands; else the one step.
+    fn split_step(&mut self, t: Time, changed: u32, saved: RunState) {
+        let acts = self.engine.part.actuator_mask();
+        let (orders, sensors) = (changed & acts, changed & !acts);
+        if orders == 0 || sensors == 0 {
+            return;
+        }
+        let one_step = (self.at.clone(), self.undo.clone());
+        for first in [orders, sensors] {
+            self.at = saved.clone();
+            self.step(t, first);
+            if self.is_normal() {
+                self.step(t, changed ^ first);
+                if self.is_normal() {
+                    return;
+                }
+            }
+        }
+        // The one step stands, and its explanation reads the clocks as they
+        // were before it.
+        (self.at, self.undo) = one_step;
+    }
+
+    fn is_normal(&self) -> bool {
+        self.normal(self.at.state)
+    }
+
+    /// Whether the normal hypothesis lives in `state`.
+    fn normal(&self, state: u32) -> bool {
+        let e = &self.engine;
+        e.labels(e.state(state).labels).normal
+    }
+
+    /// The state has just moved on from `previous`: reports what changed,
+    /// starts an unknown episode when nothing explains the part any more, and
+    /// ends one when the part has run a learned cycle again.
+    #[inline]
+    fn settle(&mut self, t: Time, previous: u32, scan: Option<(u32, u32)>) -> Option<Verdict> {
+        let (engine, run) = (&self.engine, &self.at);
+        let shown = engine.state(run.state).labels;
+        let labels = engine.labels(shown);
+        let unknown = !labels.normal && labels.modes.is_empty();
+        // The common case: nothing to report, no episode to follow.
+        if shown == run.shown && run.episode.is_none() && !unknown {
+            return None;
+        }
+        self.settle_change(t, previous, scan, unknown)
+    }
+
+    fn settle_change(
+        &mut self,
+        t: Time,
+        previous: u32,
+        scan: Option<(u32, u32)>,
+        unknown: bool,
+    ) -> Option<Verdict> {
+        if unknown {
+            let v = self.report(t, previous, scan, None);
+            self.start_again(t);
+            return v;
+        }
+        let Some(mut episode) = self.at.episode else {
+            return self.report(t, previous, scan, None);
+        };
+        if !self.is_normal() {
+            return self.report(t, previous, scan, None);
+        }
+        let (part, obs) = (&self.engine.part, self.at.obs);
+        let back = episode.cycled(part.motion(obs), part.model_state(obs).is_some());
+        let reason = back.then(|| {
+            format!(
+                "back to normal: {} is in state {} again after a cycle that the model explains; unknown since {} {}",
+                part.name,
+                part.describe(obs),
+                self.unit.format(episode.since),
+                self.unit.name(),
+            )
+        });
+        self.at.episode = (!back).then_some(episode);
+        reason.and_then(|reason| self.report(t, previous, scan, Some(reason)))
+    }
+
+    /// Starts the diagnosis again from what the part reads at `t`, its clocks
+    /// unknown (see [`Episode`]).
+    fn start_again(&mut self, t: Time) {
+        let (engine, run) = (&mut self.engine, &mut self.at);
+        run.origins.iter_mut().for_each(|o| *o = None);
+        read(&run.origins, t, &mut self.after);
+        run.state = engine.resync(run.obs, &self.after);
+        run.next_timer = engine.next_timer(run.state, &run.origins, t);
+        let mut episode = run.episode.unwrap_or(Episode {
+            since: t,
+            anchor: None,
+            left: false,
+        });
+        if episode.anchor.is_none() {
+            episode.cycled(
+                engine.part.motion(run.obs),
+                engine.part.model_state(run.obs).is_some(),
+            );
+        }
+        run.episode = Some(episode);
+    }
+
+    /// The verdict at `t` if the labels changed since the last one given;
+    /// `reason` replaces the diagnoser's own.
+    fn report(
+        &mut self,
+        t: Time,
+        previous: u32,
+        scan: Option<(u32, u32)>,
+        reason: Option<String>,
+    ) -> Option<Verdict> {
+        let (engine, run) = (&self.engine, &mut self.at);
+        let now = engine.state(run.state).labels;
+        if now == run.shown {
+            return None;
+        }
+        let labels = engine.labels(now);
+        let unknown = !labels.normal && labels.modes.is_empty();
+        // The readings before the step: its restarted clocks put back.
+        read(&run.origins, self.before_at, &mut self.before);
+        for &(c, origin) in &self.undo {
+            self.before[c as usize] = origin.map(|o| self.before_at - o);
+        }
+        let mut reason = reason.unwrap_or_else(|| {
+            super::explain::reason(
+                engine,
+                previous,
+                run.state,
+                scan,
+                &self.before,
+                run.last_command,
+                self.unit,
+            )
+        });
+        // No flag while the part is unknown, nor until it has run a learned
+        // cycle since.
+        let new_flags = match run.episode {
+            Some(e) if labels.flags != 0 => {
+                reason.push_str(&format!(
+                    "; no def_ flag: unknown since {} {}, no learned cycle yet",
+                    self.unit.format(e.since),
+                    self.unit.name()
+                ));
+                run.flags
+            }
+            Some(_) => run.flags,
+            None => run.flags | labels.flags,
+        };
+        if unknown && run.episode.is_none() {
+            reason.push_str(
+                "; diagnosis starts again from the present readings, back to normal after a learned cycle",
+            );
+        }
+        run.flags = new_flags;
+        run.shown = now;
+        if !labels.normal && run.detected.is_none() {
+            run.detected = Some(t);
+        }
+        self.changes += 1;
+        Some(self.verdict_of(t, reason))
+    }
+
+    /// The verdict the part last gave, at `t`.
+    fn verdict_of(&self, t: Time, reason: String) -> Verdict {
+        let (part, run) = (&self.engine.part, &self.at);
+        let labels = self.engine.labels(run.shown);
+        let names: Vec<String> = if labels.normal {
+            vec!["N".to_string()]
+        } else if labels.modes.is_empty() {
+            vec![UNKNOWN_LABEL.to_string()]
+        } else {
+            labels
+                .modes
+                .iter()
+                .map(|&m| part.modes[m as usize].label.clone())
+                .collect()
+        };
+        let verdict = if labels.normal {
+            VerdictKind::Normal
+        } else if names.len() == 1 {
+            VerdictKind::Certain
+        } else {
+            VerdictKind::Ambiguous
+        };
+        let bits = |mask: u32| -> Vec<String> {
+            part.partitions
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| mask >> i & 1 == 1)
+                .map(|(_, n)| n.clone())
+                .collect()
+        };
+        Verdict {
+            t,
+            part: part.name.clone(),
+            verdict,
+            labels: names,
+            flags: bits(run.flags)
+                .into_iter()
+                .map(|n| Flag::def(n).to_string())
+                .collect(),
+            suspects: bits(labels.suspects),
+            reason,
+        }
+    }
+}
+
+/// Per clock of `part`, the bits whose rise and whose fall restart it
+/// ([`PartDiagnoser::restarts`] as masks).
+fn restart_masks(part: &PartDiagnoser) -> Box<[(u32, u32)]> {
+    part.clocks
+        .iter()
+        .map(|&clock| match clock {
+            Clock::Command => (part.actuator_mask(), part.actuator_mask()),
+            Clock::Edge { bit, rising: true } => (1 << bit, 0),
+            Clock::Edge { bit, rising: false } => (0, 1 << bit),
+        })
+        .collect()
+}
+
+fn read(origins: &[Option<Time>], t: Time, into: &mut Vec<Option<Time>>) {
+    into.clear();
+    into.extend(origins.iter().map(|o| o.map(|o| t - o)));
+}

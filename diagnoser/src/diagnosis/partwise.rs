@@ -1,0 +1,271 @@
+//! A recorded log replayed part by part, on several threads.
+//!
+//! Parts are independent given the events: a part's verdicts depend on its
+//! own signals and on time only, which is the point of decentralised
+//! diagnosis. [`PartwiseReplay`] splits each batch of events into every
+//! part's scans, runs the parts side by side, then merges their verdicts in
+//! the order [`PlantDiagnoser`] gives them, and only then runs the
+//! coordinator's plant view over them, in that order. Its output is the
+//! plant diagnoser's, line for line, whatever the number of threads.
+//!
+//! ```
+//! # use diagnoser::diagnosis::{DiagnoserOptions, PartwiseReplay, PlantDiagnoser};
+//! # fn replay(plant: &diagnoser::Plant, model: &diagnoser::model::Model,
+//! #           log: &[diagnoser::Event], initial: &[bool]) -> Result<(), String> {
+//! let diagnoser = PlantDiagnoser::new(plant, model, &DiagnoserOptions::default())?;
+//! let mut replay = PartwiseReplay::new(diagnoser, 2);
+//! let mut lines = Vec::new();
+//! replay.start(0, initial);
+//! replay.push_batch(log, &mut |v| lines.push(v));
+//! let end = log.last().map_or(0, |e| e.t);
+//! let summaries = replay.finish(end, &mut |v| lines.push(v));
+//! # Ok(()) }
+//! ```
+
+use std::sync::Mutex;
+
+use super::fusion::Coordinator;
+use super::part_run::PartRun;
+use super::run::{PartSummary, PlantDiagnoser, plant_summary};
+use super::verdict::Verdict;
+use crate::{Event, Time};
+
+/// One part's scan: its time, its place among the parts' scans at that time
+/// (the first event routed to the part), and the bits it changed.
+#[derive(Debug, Clone, Copy)]
+struct PartScan {
+    t: Time,
+    order: u64,
+    changed: u32,
+}
+
+/// Where a verdict falls in the plant diagnoser's output: deadlines at a
+/// time come before the scans at that time, deadlines in part order, scans
+/// in the order of their parts' first events.
+type Place = (Time, u8, u64);
+
+/// Every part's diagnoser over a recorded log, each part on its own events,
+/// on up to `threads` threads. See the [module](self).
+#[derive(Debug)]
+pub struct PartwiseReplay {
+    parts: Vec<PartRun>,
+    /// Per plant signal `s`, `routes[route_at[s]..route_at[s + 1]]`: the
+    /// parts that read it and at which bit.
+    routes: Vec<(u16, u8)>,
+    route_at: Vec<u32>,
+    coordinator: Coordinator,
+    threads: usize,
+    /// Per part, its complete scans not run yet.
+    scans: Vec<Vec<PartScan>>,
+    /// Per part, the observed vector after its last complete scan.
+    obs: Vec<u32>,
+    /// Per part, the scan being read: its order and changed bits.
+    open: Vec<Option<(u64, u32)>>,
+    /// Parts with an open scan, in order.
+    touched: Vec<u16>,
+    /// Time of the scan being read.
+    scan: Option<Time>,
+    /// Time of the last complete scan: deadlines up to it are due.
+    complete: Option<Time>,
+    /// Events read, for the parts' order in a scan.
+    seen: u64,
+}
+
+impl PartwiseReplay {
+    /// The parts of `diagnoser`, replayed on up to `threads` threads (at
+    /// least one).
+    pub fn new(diagnoser: PlantDiagnoser, threads: usize) -> Self {
+        let (parts, per_signal, coordinator) = diagnoser.into_parts();
+        let n = parts.len();
+        let mut route_at = vec![0u32];
+        for r in &per_signal {
+            route_at.push(route_at[route_at.len() - 1] + r.len() as u32);
+        }
+        PartwiseReplay {
+            parts,
+            routes: per_signal.concat(),
+            route_at,
+            coordinator,
+            threads: threads.max(1),
+            scans: vec![Vec::new(); n],
+            obs: vec![0; n],
+            open: vec![None; n],
+            touched: Vec::new(),
+            scan: None,
+            complete: None,
+            seen: 0,
+        }
+    }
+
+    /// Starts a replay with every signal's initial value, as
+    /// [`PlantDiagnoser::start`].
+    pub fn start(&mut self, _t0: Time, initial: &[bool]) {
+        self.coordinator.reset();
+        for (p, r) in self.parts.iter_mut().enumerate() {
+            r.start(initial);
+            self.obs[p] = r.obs();
+            self.scans[p].clear();
+            self.open[p] = None;
+        }
+        self.touched.clear();
+        self.scan = None;
+        self.complete = None;
+        self.seen = 0;
+    }
+
+    /// Feeds a batch of events in time order; the verdicts of every scan the
+    /// batch completes go to `out`. The last time's events wait for the next
+    /// batch, which may hold more of that scan.
+    pub fn push_batch(&mut self, events: &[Event], out: &mut impl FnMut(Verdict)) {
+        for &e in events {
+            self.read(e);
+        }
+        if let Some(t) = self.complete {
+            self.run(t, out);
+        }
+    }
+
+    /// Ends the replay at `end`, as [`PlantDiagnoser::finish`].
+    pub fn finish(&mut self, end: Time, out: &mut impl FnMut(Verdict)) -> Vec<PartSummary> {
+        self.close_scan();
+        let upto = self.complete.map_or(end, |t| t.max(end));
+        self.run(upto, out);
+        self.parts.iter().map(PartRun::summary).collect()
+    }
+
+    /// The plant view at `t` as a summary row, as
+    /// [`PlantDiagnoser::plant_summary`].
+    pub fn plant_summary(&mut self, t: Time, summaries: &[PartSummary]) -> PartSummary {
+        plant_summary(&mut self.coordinator, t, summaries)
+    }
+
+    /// Routes one event to the open scans of the parts that read its signal.
+    #[inline]
+    fn read(&mut self, e: Event) {
+        if self.scan != Some(e.t) {
+            self.close_scan();
+            self.scan = Some(e.t);
+        }
+        let seen = self.seen;
+        self.seen += 1;
+        let s = e.signal.index();
+        let (Some(&from), Some(&to)) = (self.route_at.get(s), self.route_at.get(s + 1)) else {
+            return;
+        };
+        for &(part, bit) in &self.routes[from as usize..to as usize] {
+            let p = part as usize;
+            let (_, changed) = self.open[p].get_or_insert_with(|| {
+                self.touched.push(part);
+                (seen << 16 | u64::from(part), 0)
+            });
+            let mask = 1u32 << bit;
+            if ((self.obs[p] ^ *changed) & mask != 0) != e.value {
+                *changed ^= mask;
+            }
+        }
+    }
+
+    /// The scan being read is complete: each part that changed takes it.
+    fn close_scan(&mut self) {
+        let Some(t) = self.scan.take() else {
+            return;
+        };
+        for &part in &self.touched {
+            let p = part as usize;
+            if let Some((order, changed)) = self.open[p].take()
+                && changed != 0
+            {
+                self.scans[p].push(PartScan { t, order, changed });
+                self.obs[p] ^= changed;
+            }
+        }
+        self.touched.clear();
+        self.complete = Some(t);
+    }
+
+    /// Runs every part through its complete scans and its deadlines up to
+    /// `upto`, then gives their verdicts in the plant diagnoser's order.
+    fn run(&mut self, upto: Time, out: &mut impl FnMut(Verdict)) {
+        let mut verdicts = self.run_parts(upto);
+        verdicts.sort_by_key(|(place, _, _)| *place);
+        for (_, p, v) in verdicts {
+            let view = self.coordinator.update(p, &v);
+            out(v);
+            if let Some(view) = view {
+                out(view);
+            }
+        }
+    }
+
+    /// Each part's verdicts, with their places, from its pending scans and
+    /// deadlines up to `upto`.
+    fn run_parts(&mut self, upto: Time) -> Vec<(Place, usize, Verdict)> {
+        let mut work: Vec<_> = self
+            .parts
+            .iter_mut()
+            .zip(self.scans.iter_mut())
+            .enumerate()
+            .filter(|(_, (r, scans))| {
+                !scans.is_empty() || r.next_timer().is_some_and(|x| x <= upto)
+            })
+            .map(|(p, (r, scans))| (p, r, scans))
+            .collect();
+        let threads = self.threads.min(work.len());
+        if threads <= 1 {
+            let mut verdicts = Vec::new();
+            for (p, r, scans) in &mut work {
+                run_part(*p, r, scans, upto, &mut verdicts);
+            }
+            return verdicts;
+        }
+        // Taken heaviest first (from the end), so that the threads finish
+        // together.
+        work.sort_by_key(|(_, _, scans)| scans.len());
+        let queue = Mutex::new(work);
+        let results = Mutex::new(Vec::new());
+        std::thread::scope(|s| {
+            for _ in 0..threads {
+                s.spawn(|| {
+                    let mut verdicts = Vec::new();
+                    loop {
+                        let next = queue.lock().ok().and_then(|mut q| q.pop());
+                        let Some((p, r, scans)) = next else { break };
+                        run_part(p, r, scans, upto, &mut verdicts);
+                    }
+                    if let Ok(mut all) = results.lock() {
+                        all.append(&mut verdicts);
+                    }
+                });
+            }
+        });
+        results.into_inner().unwrap_or_default()
+    }
+}
+
+/// Part `p` through its `scans`, then its deadlines up to `upto`; its
+/// verdicts go to `verdicts` with their places.
+fn run_part(
+    p: usize,
+    run: &mut PartRun,
+    scans: &mut Vec<PartScan>,
+    upto: Time,
+    verdicts: &mut Vec<(Place, usize, Verdict)>,
+) {
+    for scan in scans.drain(..) {
+        fire_until(p, run, scan.t, verdicts);
+        if let Some(v) = run.scan(scan.t, scan.changed) {
+            verdicts.push(((scan.t, 1, scan.order), p, v));
+        }
+    }
+    fire_until(p, run, upto, verdicts);
+}
+
+/// Part `p`'s deadlines up to `t` pass.
+#[inline]
+fn fire_until(p: usize, run: &mut PartRun, t: Time, verdicts: &mut Vec<(Place, usize, Verdict)>) {
+    while let Some(x) = run.next_timer().filter(|&x| x <= t) {
+        if let Some(v) = run.fire(x) {
+            verdicts.push(((x, 0, p as u64), p, v));
+        }
+    }
+}
