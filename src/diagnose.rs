@@ -26,7 +26,8 @@ pub struct DiagnoseArgs {
     #[arg(long, value_name = "FILE")]
     report: Option<PathBuf>,
     /// Threads that run the parts' diagnosers side by side (default: the
-    /// machine's cores). The verdict lines are the same whatever the number.
+    /// machine's cores but one, which reads the log). The verdict lines are
+    /// the same whatever the number.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
     threads: Option<u16>,
 }
@@ -38,8 +39,9 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     let model = Model::from_path(&replay.model).map_err(Failure::bad)?;
     let diagnoser = PlantDiagnoser::new(&plant, &model, &replay.options())
         .map_err(|e| Failure::bad(format!("{}: {e}", replay.model.display())))?;
+    // The log is read on a thread of its own: the parts get the other cores.
     let threads = args.threads.map_or_else(
-        || std::thread::available_parallelism().map_or(1, usize::from),
+        || std::thread::available_parallelism().map_or(1, |n| usize::from(n).saturating_sub(1)),
         usize::from,
     );
     let mut diagnoser = PartwiseReplay::new(diagnoser, threads);
