@@ -484,6 +484,19 @@ impl PartDiagnoser {
         }
     }
 
+    /// Per clock, the bits whose rise and whose fall restart it: the replay's
+    /// form of [`PartDiagnoser::restarts`], one test per clock and scan.
+    pub fn restart_masks(&self) -> Box<[(u32, u32)]> {
+        self.clocks
+            .iter()
+            .map(|&clock| match clock {
+                Clock::Command => (self.act_mask, self.act_mask),
+                Clock::Edge { bit, rising: true } => (1 << bit, 0),
+                Clock::Edge { bit, rising: false } => (0, 1 << bit),
+            })
+            .collect()
+    }
+
     /// Bits on which a hypothesis's physical state may differ from the observed one.
     fn decoupled(&self, h: Hypothesis) -> u32 {
         match self.modes[h.mode as usize].kind {

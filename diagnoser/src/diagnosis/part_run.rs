@@ -7,7 +7,6 @@
 //! [`super::PartwiseReplay`] runs the parts of a recorded log side by side.
 
 use super::engine::Engine;
-use super::part::{Clock, PartDiagnoser};
 use super::run::PartSummary;
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
 use crate::{Flag, Time, TimeUnit};
@@ -97,7 +96,7 @@ pub(crate) struct PartRun {
 impl PartRun {
     /// A part's run, not started.
     pub(crate) fn new(engine: Engine, unit: TimeUnit, polled: bool) -> Self {
-        let restarts = restart_masks(&engine.part);
+        let restarts = engine.part.restart_masks();
         PartRun {
             engine,
             at: RunState {
@@ -435,19 +434,6 @@ impl PartRun {
             reason,
         }
     }
-}
-
-/// Per clock of `part`, the bits whose rise and whose fall restart it
-/// ([`PartDiagnoser::restarts`] as masks).
-fn restart_masks(part: &PartDiagnoser) -> Box<[(u32, u32)]> {
-    part.clocks
-        .iter()
-        .map(|&clock| match clock {
-            Clock::Command => (part.actuator_mask(), part.actuator_mask()),
-            Clock::Edge { bit, rising: true } => (1 << bit, 0),
-            Clock::Edge { bit, rising: false } => (0, 1 << bit),
-        })
-        .collect()
 }
 
 fn read(origins: &[Option<Time>], t: Time, into: &mut Vec<Option<Time>>) {
