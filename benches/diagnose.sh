@@ -60,7 +60,7 @@ seconds() {
 
 # anon PID: largest anonymous resident size (KB) of PID's child while PID runs,
 # sampled every 20 ms. The whole resident size also counts the pages of
-# memory-mapped files (the log, for polars; the binary), which are the page
+# memory-mapped files (the binary), which are the page
 # cache's and reclaimable; this is the part that is the process's own.
 anon() {
   local pid=$1 child="" max=0 key value _

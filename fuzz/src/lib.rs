@@ -66,9 +66,9 @@ fn model_plant() -> &'static Plant {
 }
 
 /// A new file for every input, in a folder of this process's own: logs are
-/// read from files, as users give them. Never one file rewritten: polars maps
-/// a Parquet file, and a late task of the last input still reading a file cut
-/// short would fault (SIGBUS). A removed file's mapping stays valid.
+/// read from files, as users give them. Never one file rewritten: a reader
+/// thread of the last input may still be reading its file, and must meet the
+/// bytes it was given, not the next input's.
 fn log_file() -> PathBuf {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
     static COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);

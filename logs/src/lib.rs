@@ -82,7 +82,10 @@ pub use intervals::{
 };
 pub use many::{LOG_ENDINGS, OpenAhead, expand_dirs, open_ahead};
 #[cfg(feature = "parquet")]
-pub use parquet::write_intervals_parquet;
+pub use parquet::{
+    ParquetCells, ParquetColumn, ParquetCompression, ParquetLayout, write_intervals_parquet,
+    write_parquet_table,
+};
 pub use rows::{CellKind, Records};
 pub use scans::{
     ScanChanges, ScanReader, ScanWriter, read_scans_as_events, read_scans_as_events_from,

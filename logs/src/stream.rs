@@ -82,9 +82,8 @@ pub struct IngestOptions {
     pub time_unit: TimeUnit,
     /// Roughly how many events (or rows) to decode per batch; bounds memory.
     pub batch_rows: usize,
-    /// Parquet logs are read in slices of this many rows, one polars query
-    /// each: polars maps the whole file while a query runs, and a query per
-    /// slice keeps the file's resident pages to a slice's.
+    /// Parquet rows are decoded in slices of at most this many rows: memory
+    /// holds a row group's compressed columns and about two slices decoded.
     pub parquet_slice_rows: usize,
 }
 
@@ -94,7 +93,7 @@ impl Default for IngestOptions {
             format: None,
             time_unit: TimeUnit::Ms,
             batch_rows: 1 << 16,
-            parquet_slice_rows: 1 << 22,
+            parquet_slice_rows: 1 << 18,
         }
     }
 }
@@ -190,7 +189,7 @@ impl std::fmt::Debug for LogStream {
 /// a thread of its own, which hands batches of about `options.batch_rows`
 /// events over a bounded channel: memory stays at a few batches whatever the
 /// size of the log, and reading overlaps with what the caller does. Parquet
-/// rows come from polars (feature `parquet`), CSV lines from
+/// rows come from `polars-parquet` (feature `parquet`), CSV lines from
 /// [`crate::csv::CsvRecords`]; both go through the same rules (an intervals
 /// archive as the Parquet writer writes it is read column by column, by the
 /// same rules, and falls back to its records at the first row it doubts).

@@ -4,8 +4,8 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
+use super::table::{ParquetCells, ParquetColumn, ParquetLayout, TableWriter};
 use crate::EventLog;
-use polars::prelude::{Column, DataFrame, DataType, Field, ParquetWriter, PolarsError, Schema};
 use vocabulary::{SignalTable, Time, TimeFormat, TimeUnit};
 
 /// Rows per Parquet row group: memory holds one group's columns at a time.
@@ -43,17 +43,13 @@ pub fn write_intervals_parquet(
         )));
     }
     let times = Times::new(log.format);
-    let schema = Schema::from_iter([
-        Field::new("signal".into(), DataType::String),
-        Field::new("value".into(), DataType::Boolean),
-        Field::new("t_start".into(), times.dtype()),
-        Field::new("t_end".into(), times.dtype()),
-    ]);
+    let layout = ParquetLayout {
+        group_rows: ROWS_PER_GROUP,
+        ..ParquetLayout::default()
+    };
     let mut out = BufWriter::new(File::create(path)?);
-    let mut writer = ParquetWriter::new(&mut out)
-        .batched(&schema)
-        .map_err(polars_error)?;
     let mut rows = Rows::default();
+    let mut writer = TableWriter::new(&mut out, &rows.take(&times), &layout)?;
     // Each signal's open interval: value and start.
     let mut open: Vec<(bool, Time)> = log.initial.iter().map(|&v| (v, log.start)).collect();
     for event in &log.events {
@@ -81,9 +77,7 @@ pub fn write_intervals_parquet(
         )?;
         *interval = (event.value, event.t);
         if rows.len() >= ROWS_PER_GROUP {
-            writer
-                .write_batch(&rows.take(&times)?)
-                .map_err(polars_error)?;
+            writer.write(&rows.take(&times))?;
         }
     }
     for (id, signal) in signals.iter() {
@@ -91,16 +85,9 @@ pub fn write_intervals_parquet(
             rows.push(&signal.name, value, start, end, &times)?;
         }
     }
-    writer
-        .write_batch(&rows.take(&times)?)
-        .map_err(polars_error)?;
-    writer.finish().map_err(polars_error)?;
-    drop(writer);
+    writer.write(&rows.take(&times))?;
+    writer.finish()?;
     out.flush()
-}
-
-fn polars_error(e: PolarsError) -> io::Error {
-    io::Error::other(e.to_string())
 }
 
 /// How times are stored: whole numbers of a unit, or RFC 3339 text.
@@ -115,13 +102,6 @@ impl Times {
         match format {
             TimeFormat::Numeric(unit) => Times::Units(unit),
             TimeFormat::Rfc3339 => Times::Text,
-        }
-    }
-
-    fn dtype(self) -> DataType {
-        match self {
-            Times::Units(_) => DataType::Int64,
-            Times::Text => DataType::String,
         }
     }
 }
@@ -168,29 +148,26 @@ impl Rows {
         Ok(())
     }
 
-    /// The rows as a frame, leaving none.
-    fn take(&mut self, times: &Times) -> io::Result<DataFrame> {
-        let height = self.len();
-        let time_column = |name: &str, values: Vec<i64>| match times {
-            Times::Units(unit) => {
-                let n = unit.nanos();
-                let units: Vec<Option<i64>> = values.into_iter().map(|t| Some(t / n)).collect();
-                Column::new(name.into(), units)
-            }
-            Times::Text => {
-                let text: Vec<Option<String>> = values
-                    .into_iter()
-                    .map(|t| Some(TimeFormat::Rfc3339.format(t)))
-                    .collect();
-                Column::new(name.into(), text)
-            }
+    /// The rows as columns, leaving none.
+    fn take(&mut self, times: &Times) -> Vec<ParquetColumn> {
+        let time_column = |name: &str, values: Vec<i64>| {
+            let cells: ParquetCells = match times {
+                Times::Units(unit) => {
+                    let n = unit.nanos();
+                    values.into_iter().map(|t| t / n).collect::<Vec<_>>().into()
+                }
+                Times::Text => (values.into_iter())
+                    .map(|t| TimeFormat::Rfc3339.format(t))
+                    .collect::<Vec<_>>()
+                    .into(),
+            };
+            ParquetColumn::new(name, cells)
         };
-        let columns = vec![
-            Column::new("signal".into(), std::mem::take(&mut self.signal)),
-            Column::new("value".into(), std::mem::take(&mut self.value)),
+        vec![
+            ParquetColumn::new("signal", std::mem::take(&mut self.signal)),
+            ParquetColumn::new("value", std::mem::take(&mut self.value)),
             time_column("t_start", std::mem::take(&mut self.start)),
             time_column("t_end", std::mem::take(&mut self.end)),
-        ];
-        DataFrame::new(height, columns).map_err(polars_error)
+        ]
     }
 }

@@ -20,12 +20,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, channel, sync_channel};
 
-use polars::prelude::{DataType, ParquetReader, Schema, SerReader};
 use vocabulary::panics::Containment;
 use vocabulary::{Event, Located, Plant, SignalId, SignalTable, Time, TimeFormat, TimeUnit};
 
 use super::columns::{Column, Decoder, Layout, Rows};
-use super::contained;
+use super::decode::{Kind, Schema};
 use crate::intervals::{Interval, Rules, Survey, Surveyor, Unfold};
 use crate::rows::{file_error, open_file};
 use crate::{IngestOptions, LogEnd, LogFormat, LogStream};
@@ -58,7 +57,8 @@ pub(super) fn open_keeping(
     if !archive_layout(&schema) {
         return Ok(None);
     }
-    let Some(layout) = layout(path) else {
+    let size = std::fs::metadata(crate::spool::readable(path)).map_or(0, |m| m.len());
+    let Some(layout) = Layout::of(&schema.footer, size) else {
         return Ok(None);
     };
     let pass = Pass {
@@ -95,31 +95,19 @@ pub(super) fn open_keeping(
 /// Whether the file has exactly the form's columns, typed as the archive
 /// writer types them.
 fn archive_layout(schema: &Schema) -> bool {
-    let types = [
-        DataType::String,
-        DataType::Boolean,
-        DataType::Int64,
-        DataType::Int64,
-    ];
-    schema.len() == COLUMNS.len()
+    let kinds = [Kind::Text, Kind::Bool, Kind::Int, Kind::Int];
+    let int64 = |name: &str| {
+        schema
+            .get(name)
+            .is_some_and(|c| c.dtype == polars_arrow::datatypes::ArrowDataType::Int64)
+    };
+    schema.columns.len() == COLUMNS.len()
         && COLUMNS
             .iter()
-            .zip(&types)
-            .all(|(name, dtype)| schema.get(name) == Some(dtype))
-}
-
-/// The row groups of the file, from its footer (already checked by
-/// [`super::schema`]); `None` if they are not the form's columns.
-fn layout(path: &Path) -> Option<Layout> {
-    let read = contained(path, || {
-        let file = open_file(path)?;
-        let size = file.metadata().map_or(0, |m| m.len());
-        let footer = ParquetReader::new(file)
-            .get_metadata()
-            .map(|footer| Layout::of(footer, size));
-        Ok(footer.ok().flatten())
-    });
-    read.ok().flatten()
+            .zip(&kinds)
+            .all(|(name, kind)| schema.get(name).is_some_and(|c| c.kind == *kind))
+        && int64("t_start")
+        && int64("t_end")
 }
 
 /// What both passes read.

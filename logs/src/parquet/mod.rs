@@ -10,46 +10,38 @@
 //! null as an empty field. A row of nulls is skipped, as CSV skips a blank
 //! line.
 //!
-//! # Streaming
+//! # Decoding
 //!
-//! A polars lazy scan (`LazyFrame::scan_parquet`) ends in `sink_batches`, run
-//! by the streaming engine on a thread of its own. The sink's callback hands
-//! each `DataFrame` of about `batch_rows` rows to the reading side through a
-//! rendezvous channel, and blocks until it is taken: the engine cannot run
-//! ahead of the consumer, so memory is bounded by a few frames whatever the
-//! size of the log. polars memory-maps local files while a query runs: the
-//! pages it has read also count in the process's resident size (clean page
-//! cache, which the kernel reclaims at will). So that they stay bounded too, a
-//! log is read by one query per slice of `IngestOptions::parquet_slice_rows`
-//! rows, each unmapping the file when done. Dropping the records closes the
-//! channel, which makes the callback ask the engine to stop.
+//! The file's footer is checked before anything trusts it ([`pages`]), then
+//! its rows are decoded by `polars-parquet`, slice by slice, on a thread of
+//! their own ([`decode`]).
 
 use std::cell::OnceCell;
-use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{Receiver, sync_channel};
-use std::thread::JoinHandle;
 
-use polars::prelude::{
-    BooleanChunked, DataFrame, DataType, Engine, Float64Chunked, IdxSize, Int64Chunked, LazyFrame,
-    ParquetReader, PlRefPath, PlanCallback, PolarsError, PolarsResult, ScanArgsParquet, SchemaRef,
-    SerReader, StringChunked, col,
-};
 use vocabulary::Located;
 use vocabulary::panics::{self, Containment};
 
 use crate::IngestOptions;
 use crate::rows::{CellKind, Records, file_error, open_file};
+use decode::{Cells, Kind, Schema, Slices};
+use polars_arrow::array::StaticArray;
 
 mod archive;
 mod columns;
+mod decode;
 mod intervals;
 mod pages;
+mod table;
 #[cfg(test)]
 mod tests;
 
 pub use archive::write_intervals_parquet;
+pub(crate) use decode::schema;
 pub(crate) use intervals::open_intervals;
+pub use table::{
+    ParquetCells, ParquetColumn, ParquetCompression, ParquetLayout, write_parquet_table,
+};
 
 /// The first line of a polars error: its messages can span several lines of
 /// advice, and our errors are one line.
@@ -128,84 +120,20 @@ fn check_frame(path: &Path) -> Result<u64, Located> {
     Ok(size)
 }
 
-/// Checks the footer's byte ranges and counts, which polars' streaming reader
-/// uses unchecked: every row group and column chunk within the file of `size`
-/// bytes, no negative count; then the page headers of every column chunk
-/// ([`pages`]), whose counts polars trusts too.
-fn check_footer(path: &Path, size: u64) -> Result<(), Located> {
-    contained(path, || {
-        let file = open_file(path)?;
-        let copy = file
-            .try_clone()
-            .map_err(|e| failure(path, &e.to_string()))?;
-        let mut reader = ParquetReader::new(copy);
-        let footer = reader
-            .get_metadata()
-            .map_err(|e| failure(path, &e.to_string()))?;
-        let fail = |why: String| Err(failure(path, &format!("a damaged footer: {why}")));
-        for (k, group) in footer.row_groups.iter().enumerate() {
-            let range = group.full_byte_range();
-            if range.start > range.end || range.end > size {
-                return fail(format!(
-                    "row group {k} spans bytes {range:?} of a file of {size}"
-                ));
-            }
-            for chunk in group.parquet_columns() {
-                let range = chunk.byte_range();
-                let counts = chunk.num_values() >= 0 && chunk.compressed_size() >= 0;
-                if range.start > range.end || range.end > size || !counts {
-                    return fail(format!(
-                        "a column chunk of row group {k} spans bytes {range:?} of a file of {size}"
-                    ));
-                }
-                pages::check_chunk(&file, range.start, range.end, chunk.num_values()).map_err(
-                    |why| {
-                        failure(
-                            path,
-                            &format!("a damaged column chunk in row group {k}: {why}"),
-                        )
-                    },
-                )?;
-            }
-        }
-        Ok(())
-    })
-}
-
-/// The schema of a Parquet file, from its footer.
-pub(crate) fn schema(path: &Path) -> Result<SchemaRef, Located> {
-    let size = check_frame(path)?;
-    check_footer(path, size)?;
-    contained(path, || {
-        let failed = |e: PolarsError| failure(path, &e.to_string());
-        let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
-        LazyFrame::scan_parquet(source, scan_args())
-            .and_then(|mut lf| lf.collect_schema())
-            .map_err(failed)
-    })
-}
-
 /// The names of a Parquet file's columns, from its footer.
 pub(crate) fn column_names(path: &Path) -> Result<Vec<String>, Located> {
-    Ok(schema(path)?.iter_names().map(|n| n.to_string()).collect())
-}
-
-fn scan_args() -> ScanArgsParquet {
-    ScanArgsParquet {
-        glob: false,
-        ..ScanArgsParquet::default()
-    }
+    Ok(schema(path)?.columns.into_iter().map(|c| c.name).collect())
 }
 
 /// The rows of a Parquet log, as records.
 pub struct ParquetRecords {
     path: PathBuf,
-    schema: SchemaRef,
+    schema: Schema,
     names: Vec<String>,
     options: IngestOptions,
-    /// The frames, once the header has been read.
-    frames: Option<Frames>,
-    /// The current frame's columns, and the next row in it.
+    /// The slices, once the header has been read.
+    frames: Option<Slices>,
+    /// The current slice's columns, and the next row in it.
     cells: Vec<Cells>,
     height: usize,
     next_row: usize,
@@ -236,7 +164,7 @@ impl ParquetRecords {
     /// Opens the file and reads its schema; no row is read yet.
     pub fn open(path: &Path, options: &IngestOptions) -> Result<Self, Located> {
         let schema = schema(path)?;
-        let names = schema.iter_names().map(|n| n.to_string()).collect();
+        let names = schema.columns.iter().map(|c| c.name.clone()).collect();
         Ok(ParquetRecords {
             path: path.to_path_buf(),
             schema,
@@ -267,26 +195,22 @@ impl ParquetRecords {
         self.rendered = vec![OnceCell::new(); self.names.len()];
     }
 
-    /// Moves to the next frame; `Ok(false)` at the end of the file.
+    /// Moves to the next slice; `Ok(false)` at the end of the file.
     fn next_frame(&mut self) -> Result<bool, Located> {
         let frames = match &mut self.frames {
             Some(frames) => frames,
-            None => self
-                .frames
-                .insert(Frames::start(&self.path, &self.options, None)?),
+            None => self.frames.insert(Slices::start(
+                &self.path,
+                &self.schema,
+                self.options.parquet_slice_rows,
+            )?),
         };
         match frames.next() {
             None => Ok(false),
             Some(Err(message)) => Err(failure(&self.path, &message)),
-            Some(Ok(df)) => {
-                let cells = || {
-                    (self.names.iter())
-                        .map(|name| Cells::of(&df, name))
-                        .collect::<Result<_, _>>()
-                        .map_err(|message| failure(&self.path, &message))
-                };
-                self.cells = contained(&self.path, cells)?;
-                self.height = df.height();
+            Some(Ok(slice)) => {
+                self.cells = slice.cells;
+                self.height = slice.height;
                 self.next_row = 0;
                 Ok(true)
             }
@@ -394,16 +318,15 @@ impl Records for ParquetRecords {
     }
 
     fn holds(&self, i: usize, kind: CellKind) -> Result<(), String> {
-        let Some((_, dtype)) = self.schema.get_at_index(i) else {
+        let Some(column) = self.schema.columns.get(i) else {
             return Ok(());
         };
-        let text = matches!(dtype, DataType::String);
         let ok = match kind {
-            CellKind::Time => dtype.is_integer() || dtype.is_float() || text,
-            CellKind::Signal => text || matches!(dtype, DataType::Categorical(..)),
-            CellKind::Value => dtype.is_integer() || *dtype == DataType::Boolean || text,
+            CellKind::Time => matches!(column.kind, Kind::Int | Kind::Float | Kind::Text),
+            CellKind::Signal => column.kind == Kind::Text,
+            CellKind::Value => matches!(column.kind, Kind::Int | Kind::Bool | Kind::Text),
         };
-        if ok { Ok(()) } else { Err(dtype.to_string()) }
+        if ok { Ok(()) } else { Err(column.type_name()) }
     }
 }
 
@@ -417,46 +340,7 @@ fn clean(field: &str) -> &str {
     }
 }
 
-/// One column of a frame, by type.
-enum Cells {
-    Text(StringChunked),
-    Int(Int64Chunked),
-    Float(Float64Chunked),
-    Bool(BooleanChunked),
-}
-
 impl Cells {
-    fn of(df: &DataFrame, name: &str) -> Result<Cells, String> {
-        let failed = |e: PolarsError| {
-            format!(
-                "cannot decode column '{name}': {}",
-                first_line(&e.to_string())
-            )
-        };
-        let series = df
-            .column(name)
-            .map_err(failed)?
-            .as_materialized_series()
-            .rechunk();
-        Ok(match series.dtype() {
-            DataType::String => Cells::Text(series.str().map_err(failed)?.clone()),
-            DataType::Boolean => Cells::Bool(series.bool().map_err(failed)?.clone()),
-            DataType::Categorical(..) => {
-                let text = series.cast(&DataType::String).map_err(failed)?;
-                Cells::Text(text.str().map_err(failed)?.clone())
-            }
-            d if d.is_integer() => {
-                let ints = series.cast(&DataType::Int64).map_err(failed)?;
-                Cells::Int(ints.i64().map_err(failed)?.clone())
-            }
-            d if d.is_float() => {
-                let floats = series.cast(&DataType::Float64).map_err(failed)?;
-                Cells::Float(floats.f64().map_err(failed)?.clone())
-            }
-            other => return Err(format!("column '{name}' has unsupported type {other}")),
-        })
-    }
-
     /// Cell `i`, its text (trimmed and unquoted) appended to `text`.
     fn field(&self, i: usize, text: &mut String) -> Field {
         match self {
@@ -473,112 +357,4 @@ impl Cells {
             Cells::Bool(ca) => ca.get(i).map_or(Field::Null, Field::Bool),
         }
     }
-}
-
-/// The frames of the queries that read a file, in order, computed on a thread
-/// of its own.
-pub(crate) struct Frames {
-    receiver: Receiver<DataFrame>,
-    worker: Option<JoinHandle<PolarsResult<()>>>,
-}
-
-impl Frames {
-    /// Starts reading the file: every column, or only `columns` (in that
-    /// order), which polars then does not decode.
-    pub(crate) fn start(
-        path: &Path,
-        options: &IngestOptions,
-        columns: Option<&[&str]>,
-    ) -> Result<Frames, Located> {
-        contained(path, || Frames::start_uncontained(path, options, columns))
-    }
-
-    fn start_uncontained(
-        path: &Path,
-        options: &IngestOptions,
-        columns: Option<&[&str]>,
-    ) -> Result<Frames, Located> {
-        let failed = |e: PolarsError| failure(path, &e.to_string());
-        let queries = slices(path, options.parquet_slice_rows, columns)?;
-        // A rendezvous channel: the callback (on polars' blocking pool) waits
-        // until the consumer takes the frame, so the engine never runs more than
-        // a frame ahead of it, which bounds memory.
-        let (sender, receiver) = sync_channel::<DataFrame>(0);
-        let callback = PlanCallback::new(move |df: DataFrame| {
-            // Stop the query once nobody reads (the records were dropped).
-            Ok(sender.send(df).is_err())
-        });
-        let rows = NonZeroUsize::new(options.batch_rows.max(1));
-        let queries = queries
-            .into_iter()
-            .map(|lf| {
-                lf.sink_batches(callback.clone(), true, rows)
-                    .map_err(failed)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        let worker = std::thread::Builder::new()
-            .name("gardefou-parquet".to_string())
-            .spawn(move || {
-                // Its panics come back through `join`, as the file's error.
-                let _quiet = Containment::start();
-                // One after the other: the frames stay in order.
-                for lf in queries {
-                    lf.collect_with_engine(Engine::Streaming)?;
-                }
-                Ok(())
-            })
-            .map_err(|e| file_error(path, format!("cannot start reading the log: {e}")))?;
-        Ok(Frames {
-            receiver,
-            worker: Some(worker),
-        })
-    }
-
-    /// The next frame, `None` at the end, or polars' error message.
-    pub(crate) fn next(&mut self) -> Option<Result<DataFrame, String>> {
-        if let Ok(df) = self.receiver.recv() {
-            return Some(Ok(df));
-        }
-        // The sender is gone: the query has ended, well or not.
-        let worker = self.worker.take()?;
-        match worker.join() {
-            Ok(Ok(())) => None,
-            Ok(Err(e)) => Some(Err(e.to_string())),
-            Err(payload) => Some(Err(panics::message(payload.as_ref()))),
-        }
-    }
-}
-
-/// The queries that read a file, one per slice of `slice_rows` rows: polars
-/// maps the whole file while a query runs; a query per slice maps it anew and
-/// unmaps it when done, so the file's resident pages stay bounded by a slice's.
-fn slices(
-    path: &Path,
-    slice_rows: usize,
-    columns: Option<&[&str]>,
-) -> Result<Vec<LazyFrame>, Located> {
-    contained(path, || slices_uncontained(path, slice_rows, columns))
-}
-
-fn slices_uncontained(
-    path: &Path,
-    slice_rows: usize,
-    columns: Option<&[&str]>,
-) -> Result<Vec<LazyFrame>, Located> {
-    let failed = |e: PolarsError| failure(path, &e.to_string());
-    let slice_rows = slice_rows.max(1);
-    let source = PlRefPath::try_from_path(&crate::spool::readable(path)).map_err(failed)?;
-    let mut lf = LazyFrame::scan_parquet(source, scan_args()).map_err(failed)?;
-    if let Some(columns) = columns {
-        lf = lf.select(columns.iter().map(|&name| col(name)).collect::<Vec<_>>());
-    }
-    let file = open_file(path)?;
-    let rows = ParquetReader::new(file).num_rows().map_err(failed)?;
-    if rows <= slice_rows {
-        return Ok(vec![lf]);
-    }
-    Ok((0..rows)
-        .step_by(slice_rows)
-        .map(|offset| lf.clone().slice(offset as i64, slice_rows as IdxSize))
-        .collect())
 }

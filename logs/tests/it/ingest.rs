@@ -12,8 +12,9 @@ use logs::{
     EventLog, EventWriter, IntervalWriter, ScanWriter, read_events, read_intervals_as_events,
     read_scans_as_events,
 };
-use logs::{IngestOptions, LogFormat, detect_format, open, write_intervals_parquet};
-use polars::prelude::{Column, DataFrame, ParquetWriter};
+use logs::{
+    IngestOptions, LogFormat, ParquetColumn as Column, detect_format, open, write_intervals_parquet,
+};
 use vocabulary::{Event, Located, MS, Plant, SECOND, SignalId, Time, TimeFormat, TimeUnit};
 
 /// A small batch size, so that every form is read in many batches.
@@ -24,8 +25,7 @@ fn options(batch_rows: usize) -> IngestOptions {
         format: None,
         time_unit: TimeUnit::Ms,
         batch_rows,
-        // These tests exercise the polars path whatever the file size.
-        parquet_slice_rows: 1 << 22,
+        parquet_slice_rows: 1 << 18,
     }
 }
 
@@ -119,10 +119,7 @@ fn simulated() -> (Plant, MemorySink) {
 }
 
 fn write_parquet(path: &Path, columns: Vec<Column>) {
-    let height = columns.first().map_or(0, Column::len);
-    let mut df = DataFrame::new(height, columns).expect("frame");
-    ParquetWriter::new(File::create(path).expect("create"))
-        .finish(&mut df)
+    logs::write_parquet_table(path, columns, &logs::ParquetLayout::default())
         .expect("write parquet");
 }
 
@@ -221,21 +218,15 @@ fn every_form_reads_back_the_same_run() {
     write_parquet(
         &events_parquet,
         vec![
+            Column::new("t", rows.iter().map(|r| r.0 / MS).collect::<Vec<i64>>()),
             Column::new(
-                "t".into(),
-                rows.iter().map(|r| r.0 / MS).collect::<Vec<i64>>(),
-            ),
-            Column::new(
-                "signal".into(),
+                "signal",
                 rows.iter()
                     .map(|r| signals.name(r.1))
                     .collect::<Vec<&str>>(),
             ),
-            Column::new(
-                "value".into(),
-                rows.iter().map(|r| r.2).collect::<Vec<bool>>(),
-            ),
-            Column::new("quality".into(), vec!["good"; rows.len()]),
+            Column::new("value", rows.iter().map(|r| r.2).collect::<Vec<bool>>()),
+            Column::new("quality", vec!["good"; rows.len()]),
         ],
     );
     expected.push((events_parquet, LogFormat::EventsParquet));
@@ -246,19 +237,19 @@ fn every_form_reads_back_the_same_run() {
         &rfc_parquet,
         vec![
             Column::new(
-                "t".into(),
+                "t",
                 rows.iter()
                     .map(|r| TimeFormat::Rfc3339.format(r.0))
                     .collect::<Vec<String>>(),
             ),
             Column::new(
-                "signal".into(),
+                "signal",
                 rows.iter()
                     .map(|r| signals.name(r.1))
                     .collect::<Vec<&str>>(),
             ),
             Column::new(
-                "value".into(),
+                "value",
                 rows.iter()
                     .map(|r| if r.2 { "true" } else { "0" })
                     .collect::<Vec<&str>>(),
@@ -270,7 +261,7 @@ fn every_form_reads_back_the_same_run() {
     // Float times in ms; booleans and 0/1 integers of every width as values.
     let scans_parquet = dir.path().join("scans.parquet");
     let mut columns = vec![Column::new(
-        "t".into(),
+        "t",
         all_scans
             .iter()
             .map(|s| s.0 as f64 / MS as f64)
@@ -279,7 +270,7 @@ fn every_form_reads_back_the_same_run() {
     for (id, signal) in signals.iter() {
         let i = id.index();
         // Values as booleans or as integers of every width a writer may pick.
-        let name = signal.name.as_str().into();
+        let name = signal.name.as_str();
         let bits = all_scans.iter().map(|s| s.1[i]);
         let column = match i % 7 {
             0 => Column::new(name, bits.collect::<Vec<bool>>()),
@@ -315,7 +306,7 @@ fn every_form_reads_back_the_same_run() {
             got.batches
         );
         if path.extension().is_some_and(|x| x == "parquet") {
-            // Read in many slices (one polars query each): the same stream.
+            // Decoded in many slices, several to a row group: the same stream.
             let sliced = IngestOptions {
                 parquet_slice_rows: 97,
                 ..options(BATCH)
@@ -662,15 +653,9 @@ fn an_end_row_reaches_every_reader_of_the_events_form() {
     write_parquet(
         &parquet,
         vec![
-            Column::new(
-                "t".into(),
-                rows.iter().map(|r| r.0 / MS).collect::<Vec<i64>>(),
-            ),
-            Column::new(
-                "signal".into(),
-                rows.iter().map(|r| r.1).collect::<Vec<_>>(),
-            ),
-            Column::new("value".into(), rows.iter().map(|r| r.2).collect::<Vec<_>>()),
+            Column::new("t", rows.iter().map(|r| r.0 / MS).collect::<Vec<i64>>()),
+            Column::new("signal", rows.iter().map(|r| r.1).collect::<Vec<_>>()),
+            Column::new("value", rows.iter().map(|r| r.2).collect::<Vec<_>>()),
         ],
     );
 
@@ -716,9 +701,9 @@ fn an_end_row_reaches_every_reader_of_the_events_form() {
 fn bad_parquet_files_fail_clearly() {
     let plant = turntable();
     let dir = tempfile::tempdir().expect("temp dir");
-    let t = |v: &[i64]| Column::new("t".into(), v.to_vec());
-    let signal = |v: &[&str]| Column::new("signal".into(), v.to_vec());
-    let value = |v: &[bool]| Column::new("value".into(), v.to_vec());
+    let t = |v: &[i64]| Column::new("t", v.to_vec());
+    let signal = |v: &[&str]| Column::new("signal", v.to_vec());
+    let value = |v: &[bool]| Column::new("value", v.to_vec());
     let good_t = [0, 0, 0, 100, 110];
     let good_signal = ["C4", "C5", "A4", "A4", "C4"];
     let good_value = [true, false, false, true, false];
@@ -731,7 +716,7 @@ fn bad_parquet_files_fail_clearly() {
         vec![
             t(&good_t),
             signal(&good_signal),
-            Column::new("value".into(), vec![1i64, 0, 0, 1, 2]),
+            Column::new("value", vec![1i64, 0, 0, 1, 2]),
         ],
     );
     let backwards = dir.path().join("backwards.parquet");
@@ -756,7 +741,7 @@ fn bad_parquet_files_fail_clearly() {
     write_parquet(
         &bad_time,
         vec![
-            Column::new("t".into(), vec!["0", "0", "0", "100", "1l0"]),
+            Column::new("t", vec!["0", "0", "0", "100", "1l0"]),
             signal(&good_signal),
             value(&good_value),
         ],
@@ -765,10 +750,10 @@ fn bad_parquet_files_fail_clearly() {
     write_parquet(
         &backwards_intervals,
         vec![
-            Column::new("signal".into(), vec!["C4", "C5", "A4", "C4"]),
-            Column::new("value".into(), vec![true, false, false, false]),
-            Column::new("t_start".into(), vec![0i64, 0, 0, 100]),
-            Column::new("t_end".into(), vec![Some(100i64), None, None, Some(90)]),
+            Column::new("signal", vec!["C4", "C5", "A4", "C4"]),
+            Column::new("value", vec![true, false, false, false]),
+            Column::new("t_start", vec![0i64, 0, 0, 100]),
+            Column::new("t_end", vec![Some(100i64), None, None, Some(90)]),
         ],
     );
 
@@ -836,9 +821,9 @@ fn a_parquet_column_of_the_wrong_type_is_named_on_the_header_line() {
     write_parquet(
         &typed,
         vec![
-            Column::new("t".into(), vec![false, false, false, true, true]),
-            Column::new("signal".into(), vec!["C4", "C5", "A4", "A4", "C4"]),
-            Column::new("value".into(), vec![true, false, false, true, false]),
+            Column::new("t", vec![false, false, false, true, true]),
+            Column::new("signal", vec!["C4", "C5", "A4", "A4", "C4"]),
+            Column::new("value", vec![true, false, false, true, false]),
         ],
     );
     let e = first_error(&typed, &turntable(), &options(2));
@@ -867,7 +852,7 @@ fn a_file_of_unknown_form_fails_clearly() {
         "{e}"
     );
     let parquet = dir.path().join("odd.parquet");
-    write_parquet(&parquet, vec![Column::new("x".into(), vec![1i64])]);
+    write_parquet(&parquet, vec![Column::new("x", vec![1i64])]);
     let e = detect_format(&parquet).expect_err("odd columns");
     assert!(e.to_string().contains("odd.parquet"), "{e}");
     let missing = dir.path().join("missing.csv");
@@ -984,7 +969,7 @@ fn a_large_events_csv_streams_in_bounded_memory() {
     let mut count = 0;
     let mut batches = 0;
     // Peak anonymous and file-backed resident memory, sampled at each batch
-    // (polars maps the file: its pages count in RSS but are the page cache's).
+    // (file-backed pages are the page cache's, and the binary's).
     let (mut anon, mut mapped) = (0, 0);
     for batch in stream.batches {
         count += batch.expect("batch").len();
