@@ -2,7 +2,7 @@
 //!
 //! Each column chunk of a row group is read into memory once (its compressed
 //! bytes), then decoded by `polars-parquet` in slices of at most
-//! `IngestOptions::parquet_slice_rows` rows: the pages before a slice are
+//! `IngestOptions::parquet_slice_rows` rows (fewer for a wide file): the pages before a slice are
 //! skipped without being decompressed, so memory holds one row group's
 //! compressed columns and a slice's decoded ones. Slices are decoded on a
 //! thread of their own, one ahead of their reader.
@@ -288,6 +288,11 @@ pub(crate) struct Slice {
     pub(crate) height: usize,
 }
 
+/// Cells decoded per slice at most: a wide file (a scans log, a column per
+/// signal) is decoded in slices of fewer rows, so that memory stays at a few
+/// MB per slice whatever its width.
+const SLICE_CELLS: usize = 1 << 20;
+
 /// The slices of a file, in order, decoded on a thread of their own.
 pub(crate) struct Slices {
     receiver: Receiver<Result<Slice, String>>,
@@ -296,7 +301,7 @@ pub(crate) struct Slices {
 
 impl Slices {
     /// Starts decoding the file: every column, in slices of at most
-    /// `slice_rows` rows.
+    /// `slice_rows` rows and [`SLICE_CELLS`] cells.
     pub(crate) fn start(
         path: &Path,
         schema: &Schema,
@@ -308,7 +313,9 @@ impl Slices {
         let decoder = Decoder {
             file,
             schema: schema.clone(),
-            slice_rows: slice_rows.max(1),
+            slice_rows: slice_rows
+                .min(SLICE_CELLS / schema.columns.len().max(1))
+                .max(1),
             sender,
         };
         let worker = std::thread::Builder::new()
