@@ -67,6 +67,8 @@ impl ColumnSpec {
 pub(crate) struct Schema {
     pub(crate) columns: Vec<ColumnSpec>,
     pub(crate) footer: FileMetadata,
+    /// The file's size in bytes.
+    pub(crate) size: u64,
 }
 
 impl Schema {
@@ -106,7 +108,11 @@ pub(crate) fn schema(path: &Path) -> Result<Schema, Located> {
                 ),
             ));
         }
-        Ok(Schema { columns, footer })
+        Ok(Schema {
+            columns,
+            footer,
+            size,
+        })
     })
 }
 

@@ -57,8 +57,7 @@ pub(super) fn open_keeping(
     if !archive_layout(&schema) {
         return Ok(None);
     }
-    let size = std::fs::metadata(crate::spool::readable(path)).map_or(0, |m| m.len());
-    let Some(layout) = Layout::of(&schema.footer, size) else {
+    let Some(layout) = Layout::of(&schema.footer, schema.size) else {
         return Ok(None);
     };
     let pass = Pass {

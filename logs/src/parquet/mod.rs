@@ -16,7 +16,7 @@
 //! its rows are decoded by `polars-parquet`, slice by slice, on a thread of
 //! their own ([`decode`]).
 
-use std::cell::OnceCell;
+use std::cell::{Cell, OnceCell};
 use std::path::{Path, PathBuf};
 
 use vocabulary::Located;
@@ -126,6 +126,9 @@ pub(crate) fn column_names(path: &Path) -> Result<Vec<String>, Located> {
 }
 
 /// The rows of a Parquet log, as records.
+///
+/// A record's fields are read from the decoded columns when asked for, not
+/// copied out for every row: a scans log has a column per signal.
 pub struct ParquetRecords {
     path: PathBuf,
     schema: Schema,
@@ -139,35 +142,35 @@ pub struct ParquetRecords {
     next_row: usize,
     /// Rows before the current one (blank rows included).
     rows: u64,
-    header: bool,
-    /// The current record's text cells, one after the other.
-    text: String,
-    /// The current record's fields.
-    fields: Vec<Field>,
+    /// The current record.
+    at: At,
     /// The text of its integer, float and boolean fields, written when asked
-    /// for (in an error message, say), not for every row.
+    /// for (in an error message, say), not for every row; `rendered_any`
+    /// once one is written, until the next record.
     rendered: Vec<OnceCell<String>>,
+    rendered_any: Cell<bool>,
 }
 
-/// A field of the current record.
-#[derive(Debug, Clone, Copy)]
-enum Field {
-    /// Text, trimmed and unquoted: a range of `ParquetRecords::text`.
-    Text(usize, usize),
-    Int(i64),
-    Float(f64),
-    Bool(bool),
-    Null,
+/// Which record is current.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum At {
+    /// None: before the header, or after the last row.
+    Nothing,
+    /// The header: the column names.
+    Header,
+    /// Row `r` of the current slice.
+    Row(usize),
 }
 
 impl ParquetRecords {
     /// Opens the file and reads its schema; no row is read yet.
     pub fn open(path: &Path, options: &IngestOptions) -> Result<Self, Located> {
         let schema = schema(path)?;
-        let names = schema.columns.iter().map(|c| c.name.clone()).collect();
+        let names: Vec<String> = schema.columns.iter().map(|c| c.name.clone()).collect();
         Ok(ParquetRecords {
             path: path.to_path_buf(),
             schema,
+            rendered: vec![OnceCell::new(); names.len()],
             names,
             options: options.clone(),
             frames: None,
@@ -175,24 +178,9 @@ impl ParquetRecords {
             height: 0,
             next_row: 0,
             rows: 0,
-            header: false,
-            text: String::new(),
-            fields: Vec::new(),
-            rendered: Vec::new(),
+            at: At::Nothing,
+            rendered_any: Cell::new(false),
         })
-    }
-
-    /// The header record: the column names.
-    fn read_header(&mut self) {
-        self.header = true;
-        self.text.clear();
-        self.fields.clear();
-        for name in &self.names {
-            let start = self.text.len();
-            self.text.push_str(name);
-            self.fields.push(Field::Text(start, self.text.len()));
-        }
-        self.rendered = vec![OnceCell::new(); self.names.len()];
     }
 
     /// Moves to the next slice; `Ok(false)` at the end of the file.
@@ -217,81 +205,95 @@ impl ParquetRecords {
         }
     }
 
-    /// Takes row `i` of the current frame; `false` if all its cells are null
-    /// or blank.
-    fn take_row(&mut self, i: usize) -> bool {
-        self.text.clear();
-        self.fields.clear();
-        for slot in &mut self.rendered {
-            slot.take();
+    /// Makes `at` the current record, forgetting the text rendered for the
+    /// one before.
+    fn go_to(&mut self, at: At) {
+        if self.rendered_any.replace(false) {
+            self.rendered.iter_mut().for_each(|slot| drop(slot.take()));
         }
-        for cells in &self.cells {
-            let field = cells.field(i, &mut self.text);
-            self.fields.push(field);
-        }
-        (0..self.fields.len()).any(|k| !self.is_blank(k))
+        self.at = at;
+    }
+
+    /// The text of field `i` of a row, written once.
+    fn rendered(&self, i: usize, text: impl FnOnce() -> String) -> &str {
+        self.rendered_any.set(true);
+        self.rendered[i].get_or_init(text)
     }
 }
 
 impl Records for ParquetRecords {
     fn next_record(&mut self) -> Result<bool, Located> {
-        if !self.header && self.frames.is_none() {
-            self.read_header();
+        if self.at == At::Nothing && self.frames.is_none() {
+            self.go_to(At::Header);
             return Ok(true);
         }
-        self.header = false;
         loop {
             while self.next_row < self.height {
-                let i = self.next_row;
+                let r = self.next_row;
                 self.next_row += 1;
                 self.rows += 1;
-                if self.take_row(i) {
+                self.go_to(At::Row(r));
+                // A row of nulls or blanks is skipped, as CSV skips a blank line.
+                if (0..self.cells.len()).any(|k| !self.is_blank(k)) {
                     return Ok(true);
                 }
             }
             if !self.next_frame()? {
-                self.fields.clear();
+                self.go_to(At::Nothing);
                 return Ok(false);
             }
         }
     }
 
     fn len(&self) -> usize {
-        self.fields.len()
+        match self.at {
+            At::Nothing => 0,
+            At::Header => self.names.len(),
+            At::Row(_) => self.cells.len(),
+        }
     }
 
     fn field(&self, i: usize) -> &str {
-        let Some(&field) = self.fields.get(i) else {
-            return "";
+        let r = match self.at {
+            At::Nothing => return "",
+            At::Header => return self.names.get(i).map_or("", String::as_str),
+            At::Row(r) => r,
         };
-        match field {
-            Field::Text(a, b) => &self.text[a..b],
-            Field::Null => "",
-            Field::Int(v) => self.rendered[i].get_or_init(|| v.to_string()),
-            Field::Float(v) => self.rendered[i].get_or_init(|| v.to_string()),
-            Field::Bool(v) => self.rendered[i].get_or_init(|| v.to_string()),
+        match self.cells.get(i) {
+            None => "",
+            Some(Cells::Text(ca)) => ca.get(r).map_or("", clean),
+            Some(Cells::Int(ca)) => ca.get(r).map_or("", |v| self.rendered(i, || v.to_string())),
+            Some(Cells::Float(ca)) => ca.get(r).map_or("", |v| self.rendered(i, || v.to_string())),
+            Some(Cells::Bool(ca)) => ca.get(r).map_or("", |v| self.rendered(i, || v.to_string())),
         }
     }
 
     fn integer(&self, i: usize) -> Option<i64> {
-        match self.fields.get(i) {
-            Some(Field::Int(v)) => Some(*v),
+        match (self.at, self.cells.get(i)) {
+            (At::Row(r), Some(Cells::Int(ca))) => ca.get(r),
             _ => None,
         }
     }
 
     fn boolean(&self, i: usize) -> Option<bool> {
-        match self.fields.get(i) {
-            Some(Field::Bool(v)) => Some(*v),
+        match (self.at, self.cells.get(i)) {
+            (At::Row(r), Some(Cells::Bool(ca))) => ca.get(r),
             _ => None,
         }
     }
 
     fn is_blank(&self, i: usize) -> bool {
-        match self.fields.get(i) {
-            None | Some(Field::Null) => true,
-            Some(Field::Text(a, b)) => a == b,
-            Some(_) => false,
+        let r = match self.at {
+            At::Nothing => return true,
+            At::Header => return self.names.get(i).is_none_or(String::is_empty),
+            At::Row(r) => r,
+        };
+        match self.cells.get(i) {
+            None => true,
+            Some(Cells::Text(ca)) => ca.get(r).is_none_or(|s| clean(s).is_empty()),
+            Some(Cells::Int(ca)) => ca.get(r).is_none(),
+            Some(Cells::Float(ca)) => ca.get(r).is_none(),
+            Some(Cells::Bool(ca)) => ca.get(r).is_none(),
         }
     }
 
@@ -304,7 +306,7 @@ impl Records for ParquetRecords {
     }
 
     fn line_no(&self) -> usize {
-        if self.header {
+        if self.at == At::Header {
             1
         } else {
             usize::try_from(self.rows)
@@ -337,24 +339,5 @@ fn clean(field: &str) -> &str {
         &field[1..field.len() - 1]
     } else {
         field
-    }
-}
-
-impl Cells {
-    /// Cell `i`, its text (trimmed and unquoted) appended to `text`.
-    fn field(&self, i: usize, text: &mut String) -> Field {
-        match self {
-            Cells::Text(ca) => match ca.get(i) {
-                None => Field::Null,
-                Some(s) => {
-                    let start = text.len();
-                    text.push_str(clean(s));
-                    Field::Text(start, text.len())
-                }
-            },
-            Cells::Int(ca) => ca.get(i).map_or(Field::Null, Field::Int),
-            Cells::Float(ca) => ca.get(i).map_or(Field::Null, Field::Float),
-            Cells::Bool(ca) => ca.get(i).map_or(Field::Null, Field::Bool),
-        }
     }
 }
