@@ -58,55 +58,135 @@ pub struct Engine {
     index: HashMap<(u32, Box<[Hypothesis]>), u32>,
     labels: Vec<Labels>,
     label_index: HashMap<Labels, u32>,
-    /// Per state, the clocks its region reads and its timers, flattened.
+    /// Per state, what the replay reads of it: the clocks its region reads,
+    /// its timers, its labels.
     clocking: Vec<Clocking>,
     /// Per state, its transitions computed so far.
     moves: Vec<Moves>,
+    /// Per clock, the bits whose rise and whose fall restart it.
+    restarts: Box<[(u32, u32)]>,
 }
 
-/// A state's thresholds in the form the replay reads them: only the clocks
-/// that have any, each with its slice of one flat array.
+/// Most clocks a part may have: the command clock, and a rising and a
+/// falling edge per signal. Sets of clocks are bits of a `u64`.
+const MAX_CLOCKS: usize = 1 + 2 * super::part::MAX_PART_SIGNALS;
+const _: () = assert!(MAX_CLOCKS <= 64);
+
+/// One clock's thresholds in a state: the clock, and its slice of the
+/// state's flat array.
+#[derive(Debug, Clone, Copy)]
+struct ClockSpan {
+    clock: u16,
+    len: u16,
+    from: u32,
+}
+
+/// A state in the form the replay reads it: only the clocks that have
+/// thresholds, each with its slice of one flat array, and its labels.
 #[derive(Debug, Clone, Default)]
 struct Clocking {
-    /// Per clock with thresholds: the clock, and how many thresholds it has.
-    region: Box<[(u16, u16)]>,
-    /// The thresholds of `region`, clock after clock.
-    region_at: Box<[Time]>,
-    /// Per clock with timers: the clock, and how many.
-    timers: Box<[(u16, u16)]>,
-    /// The timers of `timers`, clock after clock.
-    timers_at: Box<[Time]>,
+    /// Clocks with thresholds: the region reads them.
+    region: Box<[ClockSpan]>,
+    /// Clocks with timers.
+    timers: Box<[ClockSpan]>,
+    /// The thresholds of `region`, then the timers of `timers`.
+    at: Box<[Time]>,
+    /// The clocks of `region`, as bits.
+    region_clocks: u64,
+    /// The clocks of `timers`, as bits.
+    timer_clocks: u64,
+    /// Index of the state's labels.
+    labels: u32,
+    /// No mode explains the observations.
+    unknown: bool,
 }
 
 impl Clocking {
-    fn new(thresholds: &[Box<[Time]>], timers: &[Box<[Time]>]) -> Self {
-        let flatten = |per_clock: &[Box<[Time]>]| {
-            let clocks: Box<[(u16, u16)]> = per_clock
+    fn new(thresholds: &[Box<[Time]>], timers: &[Box<[Time]>], labels: u32, unknown: bool) -> Self {
+        let mut at = Vec::new();
+        let mut spans = |per_clock: &[Box<[Time]>]| -> (Box<[ClockSpan]>, u64) {
+            let mut clocks = 0u64;
+            let spans = per_clock
                 .iter()
                 .enumerate()
                 .filter(|(_, th)| !th.is_empty())
-                .map(|(c, th)| (c as u16, th.len() as u16))
+                .map(|(c, th)| {
+                    clocks |= 1 << c;
+                    let from = at.len() as u32;
+                    at.extend_from_slice(th);
+                    ClockSpan {
+                        clock: c as u16,
+                        len: th.len() as u16,
+                        from,
+                    }
+                })
                 .collect();
-            let flat: Box<[Time]> = per_clock.iter().flat_map(|th| th.iter().copied()).collect();
-            (clocks, flat)
+            (spans, clocks)
         };
-        let (region, region_at) = flatten(thresholds);
-        let (timers, timers_at) = flatten(timers);
+        let (region, region_clocks) = spans(thresholds);
+        let (timers, timer_clocks) = spans(timers);
         Clocking {
             region,
-            region_at,
             timers,
-            timers_at,
+            at: at.into_boxed_slice(),
+            region_clocks,
+            timer_clocks,
+            labels,
+            unknown,
         }
     }
+
+    #[inline]
+    fn thresholds(&self, span: ClockSpan) -> &[Time] {
+        let from = span.from as usize;
+        &self.at[from..from + span.len as usize]
+    }
+}
+
+/// How many of the sorted thresholds `th` a reading `v` has passed.
+#[inline(always)]
+fn passed(th: &[Time], v: Time) -> usize {
+    // A clock has a handful of thresholds: a walk from the first beats a
+    // binary search.
+    if th.len() <= 8 {
+        th.iter().position(|&x| x > v).unwrap_or(th.len())
+    } else {
+        th.partition_point(|&x| x <= v)
+    }
+}
+
+/// A state's transition on one scan, with what the replay may reuse of the
+/// passing of time after it.
+#[derive(Debug, Clone, Copy)]
+struct ScanMove {
+    /// The bits the scan changed.
+    changed: u32,
+    /// The region before the scan.
+    region: u64,
+    /// The state right after the scan, before time passes.
+    stepped: u32,
+    /// The clocks the scan's edges restart, as bits.
+    restarts: u64,
+    /// The state once time has passed to the scan's end, when that reads
+    /// only restarted clocks (all at 0); else [`ScanMove::OPEN`].
+    settled: u32,
+    /// When `settled` is known and its timers too read only restarted
+    /// clocks: its next timer, after the scan ([`NEVER`]: none); else
+    /// [`ScanMove::OPEN_TIMER`].
+    timer: Time,
+}
+
+impl ScanMove {
+    const OPEN: u32 = u32::MAX;
+    const OPEN_TIMER: Time = Time::MIN;
 }
 
 /// A state's transitions, each sorted by its key for a binary search: most
 /// states have a handful.
 #[derive(Debug, Clone, Default)]
 struct Moves {
-    /// (changed bits, region before the scan) to the state after the scan.
-    on_scan: Vec<((u32, u64), u32)>,
+    /// By (changed bits, region before the scan).
+    on_scan: Vec<ScanMove>,
     /// Region to the state after time has passed.
     on_time: Vec<(u64, u32)>,
 }
@@ -124,6 +204,17 @@ fn find<K: Ord + Copy>(table: &[(K, u32)], key: K) -> Option<u32> {
         .map(|i| table[i].1)
 }
 
+/// Where the move on `key` is in a table of scan moves sorted by key.
+#[inline]
+fn find_scan(table: &[ScanMove], key: (u32, u64)) -> Result<usize, usize> {
+    if table.len() <= 8 {
+        if let Some(i) = table.iter().position(|m| (m.changed, m.region) == key) {
+            return Ok(i);
+        }
+    }
+    table.binary_search_by(|m| (m.changed, m.region).cmp(&key))
+}
+
 /// Adds `key` to a table sorted by key.
 fn insert<K: Ord + Copy>(table: &mut Vec<(K, u32)>, key: K, value: u32) {
     if let Err(i) = table.binary_search_by(|(k, _)| k.cmp(&key)) {
@@ -131,14 +222,72 @@ fn insert<K: Ord + Copy>(table: &mut Vec<(K, u32)>, key: K, value: u32) {
     }
 }
 
+/// The origin of a clock whose first edge has not been seen: its reading
+/// is unknown.
+pub(crate) const UNSTARTED: Time = Time::MIN;
+
+/// No timer: time alone never changes the state.
+pub(crate) const NEVER: Time = Time::MAX;
+
+/// The reading at `t` of a clock started at `origin`.
+#[inline(always)]
+fn reading(origin: Time, t: Time) -> Option<Time> {
+    (origin != UNSTARTED).then(|| t - origin)
+}
+
 /// The readings at `t` of clocks started at `origins`.
-fn readings_at(origins: &[Option<Time>], t: Time) -> Vec<Option<Time>> {
-    origins.iter().map(|o| o.map(|o| t - o)).collect()
+pub(crate) fn readings_at(origins: &[Time], t: Time) -> Vec<Option<Time>> {
+    origins.iter().map(|&o| reading(o, t)).collect()
+}
+
+/// The clocks a scan restarted, with their origins before it: what an
+/// explanation needs to read the clocks as they were before the step.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Restarted {
+    clocks: u64,
+    before: Vec<Time>,
+}
+
+impl Restarted {
+    /// No clock restarted.
+    #[inline]
+    pub(crate) fn clear(&mut self) {
+        self.clocks = 0;
+    }
+
+    /// Restarts `clocks` at `t`, keeping their origins before.
+    #[inline(always)]
+    fn restart(&mut self, clocks: u64, origins: &mut [Time], t: Time) {
+        if self.before.len() < origins.len() {
+            self.before.resize(origins.len(), UNSTARTED);
+        }
+        self.clocks = clocks;
+        let mut left = clocks;
+        while left != 0 {
+            let c = left.trailing_zeros() as usize;
+            self.before[c] = origins[c];
+            origins[c] = t;
+            left &= left - 1;
+        }
+    }
+
+    /// Puts back into `readings` (at `t`) the restarted clocks' readings
+    /// before the restart.
+    pub(crate) fn put_back(&self, readings: &mut [Option<Time>], t: Time) {
+        let mut left = self.clocks;
+        while left != 0 {
+            let c = left.trailing_zeros() as usize;
+            readings[c] = reading(self.before[c], t);
+            left &= left - 1;
+        }
+    }
 }
 
 impl Engine {
     /// An engine with no state yet.
     pub fn new(part: PartDiagnoser) -> Self {
+        let restarts = part.restart_masks();
+        debug_assert!(restarts.len() <= MAX_CLOCKS);
         Engine {
             part,
             states: Vec::new(),
@@ -147,6 +296,7 @@ impl Engine {
             label_index: HashMap::new(),
             clocking: Vec::new(),
             moves: Vec::new(),
+            restarts,
         }
     }
 
@@ -182,6 +332,14 @@ impl Engine {
         &self.labels[id as usize]
     }
 
+    /// State `id`'s labels index, and whether no mode explains the
+    /// observations in it: what a replay checks after every step.
+    #[inline]
+    pub(crate) fn outcome(&self, id: u32) -> (u32, bool) {
+        let c = &self.clocking[id as usize];
+        (c.labels, c.unknown)
+    }
+
     /// Transitions computed so far (on scans, on time).
     pub fn transitions(&self) -> (usize, usize) {
         self.moves.iter().fold((0, 0), |(s, t), m| {
@@ -196,6 +354,7 @@ impl Engine {
             return id;
         }
         let labels = self.compute_labels(&key.1);
+        let unknown = !labels.normal && labels.modes.is_empty();
         let label_id = match self.label_index.get(&labels) {
             Some(&i) => i,
             None => {
@@ -209,7 +368,8 @@ impl Engine {
         let id = self.states.len() as u32;
         let thresholds: Vec<Box<[Time]>> = all.into_iter().map(Vec::into_boxed_slice).collect();
         let timers: Vec<Box<[Time]>> = timers.into_iter().map(Vec::into_boxed_slice).collect();
-        self.clocking.push(Clocking::new(&thresholds, &timers));
+        self.clocking
+            .push(Clocking::new(&thresholds, &timers, label_id, unknown));
         self.moves.push(Moves::default());
         self.states.push(DiagnoserState {
             obs,
@@ -258,23 +418,21 @@ impl Engine {
         self.region_of(id, |c| readings.get(c).copied().flatten())
     }
 
-    /// The region at `t` of the clocks started at `origins`: as
-    /// [`Engine::region`] with the readings `t - origin`.
-    #[inline]
-    pub fn region_at(&self, id: u32, origins: &[Option<Time>], t: Time) -> u64 {
-        self.region_of(id, |c| origins.get(c).copied().flatten().map(|o| t - o))
+    /// The region at `t` of the clocks started at `origins` ([`UNSTARTED`]:
+    /// not yet): as [`Engine::region`] with the readings `t - origin`.
+    #[inline(always)]
+    pub(crate) fn region_at(&self, id: u32, origins: &[Time], t: Time) -> u64 {
+        self.region_of(id, |c| reading(origins[c], t))
     }
 
-    #[inline]
+    #[inline(always)]
     fn region_of(&self, id: u32, reading: impl Fn(usize) -> Option<Time>) -> u64 {
         let clocking = &self.clocking[id as usize];
         let mut region = 0u64;
-        let mut from = 0;
-        for &(c, n) in &clocking.region {
-            let th = &clocking.region_at[from..from + n as usize];
-            from += n as usize;
-            let idx = match reading(c as usize) {
-                Some(v) => th.partition_point(|&x| x <= v) as u64,
+        for &span in &clocking.region {
+            let th = clocking.thresholds(span);
+            let idx = match reading(span.clock as usize) {
+                Some(v) => passed(th, v) as u64,
                 None => th.len() as u64 + 1,
             };
             region = region.wrapping_mul(th.len() as u64 + 2).wrapping_add(idx);
@@ -293,13 +451,21 @@ impl Engine {
 
     /// The state after time has passed up to `t`, for clocks started at
     /// `origins`: as [`Engine::advance`] with the readings `t - origin`.
-    #[inline]
-    pub fn advance_at(&mut self, id: u32, origins: &[Option<Time>], t: Time) -> u32 {
+    #[inline(always)]
+    pub(crate) fn advance_at(&mut self, id: u32, origins: &[Time], t: Time) -> u32 {
         let region = self.region_at(id, origins, t);
         match find(&self.moves[id as usize].on_time, region) {
             Some(next) => next,
             None => self.advance_new(id, region, &readings_at(origins, t)),
         }
+    }
+
+    /// A deadline of state `id` at `at` passes, for clocks started at
+    /// `origins`: the state then, and its next timer.
+    #[inline(always)]
+    pub(crate) fn fire_at(&mut self, id: u32, origins: &[Time], at: Time) -> (u32, Time) {
+        let state = self.advance_at(id, origins, at);
+        (state, self.next_timer(state, origins, at))
     }
 
     /// Computes and keeps a transition on time not taken before.
@@ -319,55 +485,148 @@ impl Engine {
     /// the clocks of its edges. `id` must already be advanced to `before`.
     pub fn scan(&mut self, id: u32, changed: u32, before: &Readings, after: &Readings) -> u32 {
         let region = self.region(id, before);
-        let stepped = match find(&self.moves[id as usize].on_scan, (changed, region)) {
-            Some(s) => s,
-            None => self.scan_new(id, changed, region, before),
-        };
+        let i = self.scan_move(id, changed, region, before);
+        let stepped = self.moves[id as usize].on_scan[i].stepped;
         self.advance(stepped, after)
     }
 
-    /// The state right after a scan at `t` that changed the observed bits
-    /// `changed`, for clocks started at `origins` before the scan: as
-    /// [`Engine::scan`] before time passes. [`Engine::advance_at`] with the
-    /// origins the scan's edges restarted completes it.
-    #[inline]
-    pub fn scan_at(&mut self, id: u32, changed: u32, origins: &[Option<Time>], t: Time) -> u32 {
+    /// A whole scan at `t` in state `id` that changed the observed bits
+    /// `changed`, for clocks started at `origins`: the scan's edges restart
+    /// their clocks (in `origins`, their origins before kept in `restarted`),
+    /// and time passes to `t`. Gives the state then and its next timer, as
+    /// a scan, then time passing, then [`Engine::next_timer`] would, but
+    /// reads again only what depends on the clocks the scan left running.
+    #[inline(always)]
+    pub(crate) fn scan_step(
+        &mut self,
+        id: u32,
+        changed: u32,
+        origins: &mut [Time],
+        t: Time,
+        restarted: &mut Restarted,
+    ) -> (u32, Time) {
         let region = self.region_at(id, origins, t);
-        match find(&self.moves[id as usize].on_scan, (changed, region)) {
-            Some(s) => s,
-            None => self.scan_new(id, changed, region, &readings_at(origins, t)),
+        let i = match find_scan(&self.moves[id as usize].on_scan, (changed, region)) {
+            Ok(i) => i,
+            Err(_) => self.scan_move(id, changed, region, &readings_at(origins, t)),
+        };
+        let mv = self.moves[id as usize].on_scan[i];
+        restarted.restart(mv.restarts, origins, t);
+        if mv.settled == ScanMove::OPEN {
+            return self.scan_settle(id, i, origins, t);
+        }
+        let next = match mv.timer {
+            ScanMove::OPEN_TIMER => self.next_timer(mv.settled, origins, t),
+            NEVER => NEVER,
+            after => t + after,
+        };
+        (mv.settled, next)
+    }
+
+    /// Time passes to the end of the scan move `i` of state `id` at `t`, and
+    /// what of it depends only on the restarted clocks is kept in the move.
+    #[cold]
+    #[inline(never)]
+    fn scan_settle(&mut self, id: u32, i: usize, origins: &[Time], t: Time) -> (u32, Time) {
+        let mv = self.moves[id as usize].on_scan[i];
+        let (state, next) = self.fire_at(mv.stepped, origins, t);
+        let running = !mv.restarts;
+        if self.region_follows(id, mv.stepped, running) {
+            let timer = if self.clocking[state as usize].timer_clocks & running == 0 {
+                if next == NEVER { NEVER } else { next - t }
+            } else {
+                ScanMove::OPEN_TIMER
+            };
+            let kept = &mut self.moves[id as usize].on_scan[i];
+            kept.settled = state;
+            kept.timer = timer;
+        }
+        (state, next)
+    }
+
+    /// Whether the region of `stepped` right after a scan from `id` follows
+    /// from the region of `id` before it: every clock it reads is restarted
+    /// (all read 0), or left `running` with thresholds that `id` reads too
+    /// (the reading is the same, and where it falls among them is known).
+    fn region_follows(&self, id: u32, stepped: u32, running: u64) -> bool {
+        let (before, after) = (
+            &self.clocking[id as usize],
+            &self.clocking[stepped as usize],
+        );
+        if after.region_clocks & running & !before.region_clocks != 0 {
+            return false;
+        }
+        after
+            .region
+            .iter()
+            .filter(|span| running >> span.clock & 1 == 1)
+            .all(|&span| {
+                let Some(&known) = before.region.iter().find(|b| b.clock == span.clock) else {
+                    return false;
+                };
+                let known = before.thresholds(known);
+                after
+                    .thresholds(span)
+                    .iter()
+                    .all(|x| known.binary_search(x).is_ok())
+            })
+    }
+
+    /// The index of the move on a scan that changed `changed` in `region`
+    /// of state `id` (`before`: the readings), computed and kept if new.
+    fn scan_move(&mut self, id: u32, changed: u32, region: u64, before: &Readings) -> usize {
+        match find_scan(&self.moves[id as usize].on_scan, (changed, region)) {
+            Ok(i) => i,
+            Err(i) => {
+                self.scan_new(id, changed, region, before, i);
+                i
+            }
         }
     }
 
-    /// Computes and keeps a transition on a scan not taken before.
+    /// Computes and keeps, at `i`, a transition on a scan not taken before.
     #[cold]
-    fn scan_new(&mut self, id: u32, changed: u32, region: u64, before: &Readings) -> u32 {
+    fn scan_new(&mut self, id: u32, changed: u32, region: u64, before: &Readings, i: usize) {
         let st = &self.states[id as usize];
         let obs = st.obs;
         let hyps = self.part.step(obs, changed, &st.hyps, before);
-        let s = self.intern(obs ^ changed, hyps);
-        insert(&mut self.moves[id as usize].on_scan, (changed, region), s);
-        s
+        let after = obs ^ changed;
+        let (rises, falls) = (changed & after, changed & !after);
+        let restarts = self
+            .restarts
+            .iter()
+            .enumerate()
+            .filter(|(_, (rise, fall))| rises & rise | falls & fall != 0)
+            .fold(0u64, |m, (c, _)| m | 1 << c);
+        let stepped = self.intern(after, hyps);
+        self.moves[id as usize].on_scan.insert(
+            i,
+            ScanMove {
+                changed,
+                region,
+                stepped,
+                restarts,
+                settled: ScanMove::OPEN,
+                timer: ScanMove::OPEN_TIMER,
+            },
+        );
     }
 
-    /// When time alone will next change state `id`, given the clocks' origins
-    /// (`None`: not yet observed) and the present time `now`.
-    #[inline]
-    pub fn next_timer(&self, id: u32, origins: &[Option<Time>], now: Time) -> Option<Time> {
+    /// When time alone will next change state `id` ([`NEVER`]: never),
+    /// given the clocks' origins ([`UNSTARTED`]: not yet observed) and the
+    /// present time `now`.
+    #[inline(always)]
+    pub(crate) fn next_timer(&self, id: u32, origins: &[Time], now: Time) -> Time {
         let clocking = &self.clocking[id as usize];
-        let mut next: Option<Time> = None;
-        let mut from = 0;
-        for &(c, n) in &clocking.timers {
-            let th = &clocking.timers_at[from..from + n as usize];
-            from += n as usize;
-            let Some(Some(o)) = origins.get(c as usize) else {
+        let mut next = NEVER;
+        for &span in &clocking.timers {
+            let o = origins[span.clock as usize];
+            if o == UNSTARTED {
                 continue;
-            };
-            let v = now - o;
-            let i = th.partition_point(|&x| x <= v);
-            if let Some(&x) = th.get(i) {
-                let at = o + x;
-                next = Some(next.map_or(at, |n: Time| n.min(at)));
+            }
+            let th = clocking.thresholds(span);
+            if let Some(&x) = th.get(passed(th, now - o)) {
+                next = next.min(o + x);
             }
         }
         next

@@ -6,7 +6,7 @@
 //! scans in time order and combines their verdicts, and
 //! [`super::PartwiseReplay`] runs the parts of a recorded log side by side.
 
-use super::engine::Engine;
+use super::engine::{Engine, NEVER, Restarted, UNSTARTED, readings_at};
 use super::run::PartSummary;
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
 use crate::{Flag, Time, TimeUnit};
@@ -16,12 +16,14 @@ use crate::{Flag, Time, TimeUnit};
 struct RunState {
     state: u32,
     obs: u32,
-    origins: Vec<Option<Time>>,
+    /// When each clock last restarted ([`UNSTARTED`]: not yet).
+    origins: Vec<Time>,
     /// Raised flags, as partition bits (sticky).
     flags: u32,
     /// Labels index of the last verdict given.
     shown: u32,
-    next_timer: Option<Time>,
+    /// When time alone next changes the state ([`NEVER`]: never).
+    next_timer: Time,
     /// The last command's edges, for explanations.
     last_command: Option<(u32, u32)>,
     /// First time the verdict left normal.
@@ -76,8 +78,6 @@ pub(crate) struct PartRun {
     /// The part's diagnoser automaton.
     pub(crate) engine: Engine,
     at: RunState,
-    /// Per clock, the bits whose rise and whose fall restart it.
-    restarts: Box<[(u32, u32)]>,
     unit: TimeUnit,
     /// See [`super::DiagnoserOptions::polled`].
     polled: bool,
@@ -86,7 +86,7 @@ pub(crate) struct PartRun {
     /// The clocks the last step restarted, with their origins before it, and
     /// its time: what an explanation reads (as the readings before the step),
     /// only when a verdict changes.
-    undo: Vec<(u16, Option<Time>)>,
+    undo: Restarted,
     before_at: Time,
     /// Scratch readings.
     before: Vec<Option<Time>>,
@@ -96,7 +96,6 @@ pub(crate) struct PartRun {
 impl PartRun {
     /// A part's run, not started.
     pub(crate) fn new(engine: Engine, unit: TimeUnit, polled: bool) -> Self {
-        let restarts = engine.part.restart_masks();
         PartRun {
             engine,
             at: RunState {
@@ -105,16 +104,15 @@ impl PartRun {
                 origins: Vec::new(),
                 flags: 0,
                 shown: 0,
-                next_timer: None,
+                next_timer: NEVER,
                 last_command: None,
                 detected: None,
                 episode: None,
             },
-            restarts,
             unit,
             polled,
             changes: 0,
-            undo: Vec::new(),
+            undo: Restarted::default(),
             before_at: Time::MIN,
             before: Vec::new(),
             after: Vec::new(),
@@ -128,8 +126,8 @@ impl PartRun {
         let obs = e.part.signals.iter().enumerate().fold(0u32, |v, (b, s)| {
             v | (u32::from(initial.get(s.index()).copied().unwrap_or(false)) << b)
         });
-        let origins = vec![None; e.part.clocks.len()];
-        let state = e.initial(obs, &origins);
+        let origins = vec![UNSTARTED; e.part.clocks.len()];
+        let state = e.initial(obs, &readings_at(&origins, 0));
         let shown = e.state(state).labels;
         self.at = RunState {
             state,
@@ -137,7 +135,7 @@ impl PartRun {
             origins,
             flags: 0,
             shown,
-            next_timer: None,
+            next_timer: NEVER,
             last_command: None,
             detected: None,
             episode: None,
@@ -153,36 +151,51 @@ impl PartRun {
     /// When time alone next changes the part's state, if ever.
     #[inline]
     pub(crate) fn next_timer(&self) -> Option<Time> {
+        (self.at.next_timer != NEVER).then_some(self.at.next_timer)
+    }
+
+    /// When time alone next changes the part's state ([`NEVER`]: never).
+    #[inline(always)]
+    pub(crate) fn deadline(&self) -> Time {
         self.at.next_timer
     }
 
     /// The deadline at `at` (from [`PartRun::next_timer`]) passes.
+    #[inline]
     pub(crate) fn fire(&mut self, at: Time) -> Option<Verdict> {
         self.undo.clear();
         self.before_at = at;
         let previous = self.at.state;
-        self.at.state = self.engine.advance_at(self.at.state, &self.at.origins, at);
-        self.at.next_timer = self.engine.next_timer(self.at.state, &self.at.origins, at);
+        (self.at.state, self.at.next_timer) =
+            self.engine.fire_at(self.at.state, &self.at.origins, at);
         // The deadline itself is the last moment the event could still have come.
         self.settle(at - 1, previous, None)
     }
 
     /// The part's scan at `t` changed the bits `changed` (not 0); every
     /// deadline up to `t` has passed.
+    #[inline]
     pub(crate) fn scan(&mut self, t: Time, changed: u32) -> Option<Verdict> {
         let previous = self.at.state;
         let obs_before = self.at.obs;
-        // A copy to try again from, only where scans may have merged.
-        let saved = self.polled.then(|| self.at.clone());
+        if self.polled {
+            self.polled_step(t, changed);
+        } else {
+            self.step(t, changed);
+        }
+        self.settle(t, previous, Some((obs_before, changed)))
+    }
+
+    /// A polled scan: one step, tried again as two where it is not normal
+    /// and the part was (see [`PartRun::split_step`]).
+    #[cold]
+    fn polled_step(&mut self, t: Time, changed: u32) {
+        let previous = self.at.state;
+        let saved = self.at.clone();
         self.step(t, changed);
-        if let Some(saved) = saved
-            && !self.is_normal()
-            && self.normal(previous)
-        {
+        if !self.is_normal() && self.normal(previous) {
             self.split_step(t, changed, saved);
         }
-        self.at.next_timer = self.engine.next_timer(self.at.state, &self.at.origins, t);
-        self.settle(t, previous, Some((obs_before, changed)))
     }
 
     /// The part's summary at the end of a replay.
@@ -199,26 +212,15 @@ impl PartRun {
     }
 
     /// The edges `changed` at `t`: their clocks start, and the state moves on.
-    #[inline]
+    #[inline(always)]
     fn step(&mut self, t: Time, changed: u32) {
         let run = &mut self.at;
         self.before_at = t;
-        let previous = run.state;
         let obs_before = run.obs;
-        let after_obs = run.obs ^ changed;
-        let stepped = self.engine.scan_at(previous, changed, &run.origins, t);
-        let (rises, falls) = (changed & after_obs, changed & !after_obs);
-        self.undo.clear();
-        for (c, (origin, &(rise, fall))) in
-            run.origins.iter_mut().zip(self.restarts.iter()).enumerate()
-        {
-            if rises & rise | falls & fall != 0 {
-                self.undo.push((c as u16, *origin));
-                *origin = Some(t);
-            }
-        }
-        run.state = self.engine.advance_at(stepped, &run.origins, t);
-        run.obs = after_obs;
+        (run.state, run.next_timer) =
+            self.engine
+                .scan_step(run.state, changed, &mut run.origins, t, &mut self.undo);
+        run.obs ^= changed;
         let acts = self.engine.part.actuator_mask();
         if changed & acts != 0 {
             run.last_command = Some((obs_before, changed & acts));
@@ -263,12 +265,10 @@ impl PartRun {
     /// The state has just moved on from `previous`: reports what changed,
     /// starts an unknown episode when nothing explains the part any more, and
     /// ends one when the part has run a learned cycle again.
-    #[inline]
+    #[inline(always)]
     fn settle(&mut self, t: Time, previous: u32, scan: Option<(u32, u32)>) -> Option<Verdict> {
-        let (engine, run) = (&self.engine, &self.at);
-        let shown = engine.state(run.state).labels;
-        let labels = engine.labels(shown);
-        let unknown = !labels.normal && labels.modes.is_empty();
+        let run = &self.at;
+        let (shown, unknown) = self.engine.outcome(run.state);
         // The common case: nothing to report, no episode to follow.
         if shown == run.shown && run.episode.is_none() && !unknown {
             return None;
@@ -276,6 +276,8 @@ impl PartRun {
         self.settle_change(t, previous, scan, unknown)
     }
 
+    #[cold]
+    #[inline(never)]
     fn settle_change(
         &mut self,
         t: Time,
@@ -313,7 +315,7 @@ impl PartRun {
     /// unknown (see [`Episode`]).
     fn start_again(&mut self, t: Time) {
         let (engine, run) = (&mut self.engine, &mut self.at);
-        run.origins.iter_mut().for_each(|o| *o = None);
+        run.origins.iter_mut().for_each(|o| *o = UNSTARTED);
         read(&run.origins, t, &mut self.after);
         run.state = engine.resync(run.obs, &self.after);
         run.next_timer = engine.next_timer(run.state, &run.origins, t);
@@ -349,9 +351,7 @@ impl PartRun {
         let unknown = !labels.normal && labels.modes.is_empty();
         // The readings before the step: its restarted clocks put back.
         read(&run.origins, self.before_at, &mut self.before);
-        for &(c, origin) in &self.undo {
-            self.before[c as usize] = origin.map(|o| self.before_at - o);
-        }
+        self.undo.put_back(&mut self.before, self.before_at);
         let mut reason = reason.unwrap_or_else(|| {
             super::explain::reason(
                 engine,
@@ -436,7 +436,7 @@ impl PartRun {
     }
 }
 
-fn read(origins: &[Option<Time>], t: Time, into: &mut Vec<Option<Time>>) {
+fn read(origins: &[Time], t: Time, into: &mut Vec<Option<Time>>) {
     into.clear();
-    into.extend(origins.iter().map(|o| o.map(|o| t - o)));
+    into.extend(origins.iter().map(|&o| (o != UNSTARTED).then(|| t - o)));
 }

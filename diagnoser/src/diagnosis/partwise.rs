@@ -26,7 +26,7 @@ use std::sync::Mutex;
 
 use super::fusion::Coordinator;
 use super::part_run::PartRun;
-use super::run::{PartSummary, PlantDiagnoser, plant_summary};
+use super::run::{PartSummary, PlantDiagnoser, Routes, plant_summary};
 use super::verdict::Verdict;
 use crate::{Event, Time};
 
@@ -49,18 +49,19 @@ type Place = (Time, u8, u64);
 #[derive(Debug)]
 pub struct PartwiseReplay {
     parts: Vec<PartRun>,
-    /// Per plant signal `s`, `routes[route_at[s]..route_at[s + 1]]`: the
-    /// parts that read it and at which bit.
-    routes: Vec<(u16, u8)>,
-    route_at: Vec<u32>,
+    /// Per plant signal, the parts that read it and at which bit.
+    routes: Routes,
     coordinator: Coordinator,
     threads: usize,
     /// Per part, its complete scans not run yet.
     scans: Vec<Vec<PartScan>>,
     /// Per part, the observed vector after its last complete scan.
     obs: Vec<u32>,
-    /// Per part, the scan being read: its order and changed bits.
-    open: Vec<Option<(u64, u32)>>,
+    /// Per part, the bits the scan being read changed, with [`OPEN`] once
+    /// the scan has touched the part.
+    open: Vec<u32>,
+    /// Per part, its place among the parts of the scan being read.
+    order: Vec<u64>,
     /// Parts with an open scan, in order.
     touched: Vec<u16>,
     /// Time of the scan being read.
@@ -71,25 +72,25 @@ pub struct PartwiseReplay {
     seen: u64,
 }
 
+/// Marks a part the scan being read touched, beside its changed bits (a
+/// part has at most 16 signals).
+const OPEN: u32 = 1 << 31;
+
 impl PartwiseReplay {
     /// The parts of `diagnoser`, replayed on up to `threads` threads (at
     /// least one).
     pub fn new(diagnoser: PlantDiagnoser, threads: usize) -> Self {
-        let (parts, per_signal, coordinator) = diagnoser.into_parts();
+        let (parts, routes, coordinator) = diagnoser.into_parts();
         let n = parts.len();
-        let mut route_at = vec![0u32];
-        for r in &per_signal {
-            route_at.push(route_at[route_at.len() - 1] + r.len() as u32);
-        }
         PartwiseReplay {
             parts,
-            routes: per_signal.concat(),
-            route_at,
+            routes,
             coordinator,
             threads: threads.max(1),
             scans: vec![Vec::new(); n],
             obs: vec![0; n],
-            open: vec![None; n],
+            open: vec![0; n],
+            order: vec![0; n],
             touched: Vec::new(),
             scan: None,
             complete: None,
@@ -105,7 +106,7 @@ impl PartwiseReplay {
             r.start(initial);
             self.obs[p] = r.obs();
             self.scans[p].clear();
-            self.open[p] = None;
+            self.open[p] = 0;
         }
         self.touched.clear();
         self.scan = None;
@@ -148,19 +149,17 @@ impl PartwiseReplay {
         }
         let seen = self.seen;
         self.seen += 1;
-        let s = e.signal.index();
-        let (Some(&from), Some(&to)) = (self.route_at.get(s), self.route_at.get(s + 1)) else {
-            return;
-        };
-        for &(part, bit) in &self.routes[from as usize..to as usize] {
+        for &(part, bit) in self.routes.of(e.signal.index()) {
             let p = part as usize;
-            let (_, changed) = self.open[p].get_or_insert_with(|| {
+            let open = &mut self.open[p];
+            if *open == 0 {
                 self.touched.push(part);
-                (seen << 16 | u64::from(part), 0)
-            });
+                self.order[p] = seen << 16 | u64::from(part);
+                *open = OPEN;
+            }
             let mask = 1u32 << bit;
-            if ((self.obs[p] ^ *changed) & mask != 0) != e.value {
-                *changed ^= mask;
+            if ((self.obs[p] ^ *open) & mask != 0) != e.value {
+                *open ^= mask;
             }
         }
     }
@@ -172,11 +171,11 @@ impl PartwiseReplay {
         };
         for &part in &self.touched {
             let p = part as usize;
-            if let Some((order, changed)) = self.open[p].take()
-                && changed != 0
-            {
-                self.scans[p].push(PartScan { t, order, changed });
+            let changed = std::mem::take(&mut self.open[p]) & !OPEN;
+            if changed != 0 {
                 self.obs[p] ^= changed;
+                let order = self.order[p];
+                self.scans[p].push(PartScan { t, order, changed });
             }
         }
         self.touched.clear();
@@ -261,9 +260,21 @@ fn run_part(
 }
 
 /// Part `p`'s deadlines up to `t` pass.
-#[inline]
+#[inline(always)]
 fn fire_until(p: usize, run: &mut PartRun, t: Time, verdicts: &mut Vec<(Place, usize, Verdict)>) {
-    while let Some(x) = run.next_timer().filter(|&x| x <= t) {
+    if run.deadline() <= t {
+        fire_due(p, run, t, verdicts);
+    }
+}
+
+/// Part `p`'s deadlines up to `t`, at least one, pass.
+#[inline(never)]
+fn fire_due(p: usize, run: &mut PartRun, t: Time, verdicts: &mut Vec<(Place, usize, Verdict)>) {
+    loop {
+        let x = run.deadline();
+        if x > t {
+            return;
+        }
         if let Some(v) = run.fire(x) {
             verdicts.push(((x, 0, p as u64), p, v));
         }

@@ -72,15 +72,29 @@ pub struct PlantDiagnoser {
     parts: Vec<PartRun>,
     /// Per plant signal, the parts that read it and at which bit.
     routes: Routes,
-    pending: Vec<(u16, u32)>,
+    /// Per part, the bits the scan being read changed, with
+    /// [`PlantDiagnoser::OPEN`] once the scan has touched the part.
+    open: Vec<u32>,
+    /// Per part, the observed vector before the scan being read.
+    obs: Vec<u32>,
+    /// The parts the scan being read touched, in the order of their first
+    /// events.
+    touched: Vec<u16>,
+    /// Per part, its next deadline ([`Time::MAX`]: none).
+    timers: Vec<Time>,
     scan: Option<Time>,
     /// Time of the last scan or of the start: deadlines before it have fired.
     now: Time,
+    /// No deadline comes before it: the earliest, or earlier.
     earliest: Option<Time>,
     coordinator: Coordinator,
 }
 
 impl PlantDiagnoser {
+    /// Marks a part the scan being read touched, beside its changed bits
+    /// (a part has at most 16 signals).
+    const OPEN: u32 = 1 << 31;
+
     /// Builds the diagnosers of every part of `plant` that `model` has learned.
     pub fn new(plant: &Plant, model: &Model, options: &DiagnoserOptions) -> Result<Self, String> {
         model.fits(plant)?;
@@ -97,7 +111,7 @@ impl PlantDiagnoser {
             });
             parts.push(PartRun::new(engine, model.time_unit, options.polled));
         }
-        let routes = routes(plant, &parts);
+        let routes = Routes::new(plant, &parts);
         let coordinator = Coordinator::new(
             plant,
             parts
@@ -109,11 +123,15 @@ impl PlantDiagnoser {
                 })
                 .collect(),
         );
+        let n = parts.len();
         Ok(PlantDiagnoser {
             coordinator,
             parts,
             routes,
-            pending: Vec::new(),
+            open: vec![0; n],
+            obs: vec![0; n],
+            touched: Vec::new(),
+            timers: vec![Time::MAX; n],
             scan: None,
             now: Time::MIN,
             earliest: None,
@@ -134,12 +152,15 @@ impl PlantDiagnoser {
     /// Starts a replay at `t0` (the time of the first record) with every
     /// signal's initial value. Clocks are unknown until their first edge.
     pub fn start(&mut self, t0: Time, initial: &[bool]) {
-        self.pending.clear();
+        self.touched.clear();
         self.scan = None;
         self.earliest = None;
         self.coordinator.reset();
-        for r in &mut self.parts {
+        for (p, r) in self.parts.iter_mut().enumerate() {
             r.start(initial);
+            self.obs[p] = r.obs();
+            self.open[p] = 0;
+            self.timers[p] = Time::MAX;
         }
         self.now = t0;
     }
@@ -153,21 +174,16 @@ impl PlantDiagnoser {
             }
             self.scan = Some(e.t);
         }
-        let Some(routes) = self.routes.get(e.signal.index()) else {
-            return;
-        };
-        for &(part, bit) in routes {
+        for &(part, bit) in self.routes.of(e.signal.index()) {
+            let p = part as usize;
+            let open = &mut self.open[p];
+            if *open == 0 {
+                self.touched.push(part);
+                *open = Self::OPEN;
+            }
             let mask = 1u32 << bit;
-            let i = match self.pending.iter().position(|p| p.0 == part) {
-                Some(i) => i,
-                None => {
-                    self.pending.push((part, 0));
-                    self.pending.len() - 1
-                }
-            };
-            let now = (self.parts[part as usize].obs() ^ self.pending[i].1) & mask != 0;
-            if now != e.value {
-                self.pending[i].1 ^= mask;
+            if ((self.obs[p] ^ *open) & mask != 0) != e.value {
+                *open ^= mask;
             }
         }
     }
@@ -214,36 +230,33 @@ impl PlantDiagnoser {
         plant_summary(&mut self.coordinator, t, summaries)
     }
 
+    /// Fires every deadline up to `t`, earliest first, and at one time in
+    /// part order.
     fn fire_timers(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
-        while let Some(at) = self.earliest {
-            if at > t {
+        while self.earliest.is_some_and(|at| at <= t) {
+            let (p, x) = self.first_timer();
+            if x > t {
+                self.earliest = (x != Time::MAX).then_some(x);
                 return;
             }
-            // Fire the earliest timer of all parts, then look again.
-            let mut first: Option<(usize, Time)> = None;
-            for (p, run) in self.parts.iter().enumerate() {
-                if let Some(x) = run.next_timer()
-                    && first.is_none_or(|(_, f)| x < f)
-                {
-                    first = Some((p, x));
-                }
-            }
-            match first {
-                Some((p, x)) if x <= t => {
-                    let verdict = self.parts[p].fire(x);
-                    self.earliest = earliest(&self.parts);
-                    self.emit(p, verdict, out);
-                }
-                Some((_, x)) => {
-                    self.earliest = Some(x);
-                    return;
-                }
-                None => {
-                    self.earliest = None;
-                    return;
-                }
+            let verdict = self.parts[p].fire(x);
+            self.timers[p] = self.parts[p].next_timer().unwrap_or(Time::MAX);
+            self.earliest = Some(x);
+            self.emit(p, verdict, out);
+        }
+    }
+
+    /// The part with the earliest deadline (the first such part) and the
+    /// deadline ([`Time::MAX`]: none).
+    #[inline]
+    fn first_timer(&self) -> (usize, Time) {
+        let mut first = (0, Time::MAX);
+        for (p, &x) in self.timers.iter().enumerate() {
+            if x < first.1 {
+                first = (p, x);
             }
         }
+        first
     }
 
     fn flush(&mut self, t: Time, out: &mut impl FnMut(Verdict)) {
@@ -251,26 +264,27 @@ impl PlantDiagnoser {
             self.fire_timers(t, out);
         }
         self.now = self.now.max(t);
-        let mut pending = std::mem::take(&mut self.pending);
-        for &(part, changed) in &pending {
+        for i in 0..self.touched.len() {
+            let p = self.touched[i] as usize;
+            let changed = std::mem::take(&mut self.open[p]) & !Self::OPEN;
             if changed == 0 {
                 continue;
             }
-            let p = part as usize;
+            self.obs[p] ^= changed;
             // Timers up to `t` have fired: the state is already up to date.
             let verdict = self.parts[p].scan(t, changed);
+            let x = self.parts[p].next_timer().unwrap_or(Time::MAX);
+            self.timers[p] = x;
             if verdict.is_some() {
                 // An unknown part starts again, with other deadlines.
-                self.earliest = earliest(&self.parts);
-            } else if let Some(x) = self.parts[p].next_timer()
-                && self.earliest.is_none_or(|e| x < e)
-            {
+                let (_, first) = self.first_timer();
+                self.earliest = (first != Time::MAX).then_some(first);
+                self.emit(p, verdict, out);
+            } else if x != Time::MAX && self.earliest.is_none_or(|e| x < e) {
                 self.earliest = Some(x);
             }
-            self.emit(p, verdict, out);
         }
-        pending.clear();
-        self.pending = pending;
+        self.touched.clear();
     }
 
     /// Gives part `p`'s verdict, if any, then the plant view it changes.
@@ -304,22 +318,42 @@ pub(crate) fn plant_summary(
 }
 
 /// Per plant signal, the parts that read it and at which bit, parts in plant
-/// order.
-pub(crate) type Routes = Vec<Vec<(u16, u8)>>;
-
-/// The [`Routes`] of `plant`'s signals to `parts`.
-pub(crate) fn routes(plant: &Plant, parts: &[PartRun]) -> Routes {
-    let mut routes = vec![Vec::new(); plant.signals.len()];
-    for (p, r) in parts.iter().enumerate() {
-        for (bit, s) in r.engine.part.signals.iter().enumerate() {
-            if let Some(route) = routes.get_mut(s.index()) {
-                route.push((p as u16, bit as u8));
-            }
-        }
-    }
-    routes
+/// order, in one flat array.
+#[derive(Debug, Clone)]
+pub(crate) struct Routes {
+    /// Signal `s`'s routes are `routes[spans[s]..spans[s + 1]]`.
+    spans: Vec<u32>,
+    routes: Vec<(u16, u8)>,
 }
 
-fn earliest(parts: &[PartRun]) -> Option<Time> {
-    parts.iter().filter_map(PartRun::next_timer).min()
+impl Routes {
+    /// The routes of `plant`'s signals to `parts`.
+    pub(crate) fn new(plant: &Plant, parts: &[PartRun]) -> Self {
+        let mut per_signal = vec![Vec::new(); plant.signals.len()];
+        for (p, r) in parts.iter().enumerate() {
+            for (bit, s) in r.engine.part.signals.iter().enumerate() {
+                if let Some(route) = per_signal.get_mut(s.index()) {
+                    route.push((p as u16, bit as u8));
+                }
+            }
+        }
+        let mut spans = vec![0u32];
+        for r in &per_signal {
+            spans.push(spans[spans.len() - 1] + r.len() as u32);
+        }
+        Routes {
+            spans,
+            routes: per_signal.concat(),
+        }
+    }
+
+    /// The parts that read signal `s`, and at which bit (none for a signal
+    /// of no part, or not of the plant).
+    #[inline]
+    pub(crate) fn of(&self, s: usize) -> &[(u16, u8)] {
+        match (self.spans.get(s), self.spans.get(s + 1)) {
+            (Some(&from), Some(&to)) => &self.routes[from as usize..to as usize],
+            _ => &[],
+        }
+    }
 }
