@@ -59,10 +59,8 @@ pub struct Engine {
     labels: Vec<Labels>,
     label_index: HashMap<Labels, u32>,
     /// Per state, what the replay reads of it: the clocks its region reads,
-    /// its timers, its labels.
-    clocking: Vec<Clocking>,
-    /// Per state, its transitions computed so far.
-    moves: Vec<Moves>,
+    /// its timers, its labels, its transitions computed so far.
+    tables: Vec<StateTable>,
     /// Per clock, the bits whose rise and whose fall restart it.
     restarts: Box<[(u32, u32)]>,
 }
@@ -70,7 +68,6 @@ pub struct Engine {
 /// Most clocks a part may have: the command clock, and a rising and a
 /// falling edge per signal. Sets of clocks are bits of a `u64`.
 const MAX_CLOCKS: usize = 1 + 2 * super::part::MAX_PART_SIGNALS;
-const _: () = assert!(MAX_CLOCKS <= 64);
 
 /// One clock's thresholds in a state: the clock, and its slice of the
 /// state's flat array.
@@ -82,9 +79,11 @@ struct ClockSpan {
 }
 
 /// A state in the form the replay reads it: only the clocks that have
-/// thresholds, each with its slice of one flat array, and its labels.
+/// thresholds, each with its slice of one flat array, its labels, and its
+/// transitions, each sorted by its key for a search (most states have a
+/// handful).
 #[derive(Debug, Clone, Default)]
-struct Clocking {
+struct StateTable {
     /// Clocks with thresholds: the region reads them.
     region: Box<[ClockSpan]>,
     /// Clocks with timers.
@@ -95,13 +94,16 @@ struct Clocking {
     region_clocks: u64,
     /// The clocks of `timers`, as bits.
     timer_clocks: u64,
-    /// Index of the state's labels.
-    labels: u32,
-    /// No mode explains the observations.
-    unknown: bool,
+    /// Index of the state's labels, with [`UNEXPLAINED`] when no mode
+    /// explains the observations.
+    outcome: u32,
+    /// By (changed bits, region before the scan).
+    on_scan: Vec<ScanMove>,
+    /// Region to the state after time has passed.
+    on_time: Vec<(u64, u32)>,
 }
 
-impl Clocking {
+impl StateTable {
     fn new(thresholds: &[Box<[Time]>], timers: &[Box<[Time]>], labels: u32, unknown: bool) -> Self {
         let mut at = Vec::new();
         let mut spans = |per_clock: &[Box<[Time]>]| -> (Box<[ClockSpan]>, u64) {
@@ -125,14 +127,15 @@ impl Clocking {
         };
         let (region, region_clocks) = spans(thresholds);
         let (timers, timer_clocks) = spans(timers);
-        Clocking {
+        StateTable {
             region,
             timers,
             at: at.into_boxed_slice(),
             region_clocks,
             timer_clocks,
-            labels,
-            unknown,
+            outcome: labels | if unknown { UNEXPLAINED } else { 0 },
+            on_scan: Vec::new(),
+            on_time: Vec::new(),
         }
     }
 
@@ -167,9 +170,11 @@ struct ScanMove {
     stepped: u32,
     /// The clocks the scan's edges restart, as bits.
     restarts: u64,
-    /// The state once time has passed to the scan's end, when that reads
-    /// only restarted clocks (all at 0); else [`ScanMove::OPEN`].
+    /// The state once time has passed to the scan's end, when that follows
+    /// from the move ([`Engine::region_follows`]); else [`ScanMove::OPEN`].
     settled: u32,
+    /// The outcome of `settled` ([`Engine::outcome`]).
+    outcome: u32,
     /// When `settled` is known and its timers too read only restarted
     /// clocks: its next timer, after the scan ([`NEVER`]: none); else
     /// [`ScanMove::OPEN_TIMER`].
@@ -179,16 +184,6 @@ struct ScanMove {
 impl ScanMove {
     const OPEN: u32 = u32::MAX;
     const OPEN_TIMER: Time = Time::MIN;
-}
-
-/// A state's transitions, each sorted by its key for a binary search: most
-/// states have a handful.
-#[derive(Debug, Clone, Default)]
-struct Moves {
-    /// By (changed bits, region before the scan).
-    on_scan: Vec<ScanMove>,
-    /// Region to the state after time has passed.
-    on_time: Vec<(u64, u32)>,
 }
 
 /// The value for `key` in a table sorted by key.
@@ -229,23 +224,89 @@ pub(crate) const UNSTARTED: Time = Time::MIN;
 /// No timer: time alone never changes the state.
 pub(crate) const NEVER: Time = Time::MAX;
 
+/// The bit of a state's outcome that says no mode explains the
+/// observations (see [`Engine::outcome`]).
+pub(crate) const UNEXPLAINED: u32 = 1 << 31;
+
+/// Where one step of a replay leaves a part.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Step {
+    /// The state.
+    pub(crate) state: u32,
+    /// Its next timer ([`NEVER`]: none).
+    pub(crate) timer: Time,
+    /// Its outcome ([`Engine::outcome`]).
+    pub(crate) outcome: u32,
+}
+
 /// The reading at `t` of a clock started at `origin`.
 #[inline(always)]
 fn reading(origin: Time, t: Time) -> Option<Time> {
     (origin != UNSTARTED).then(|| t - origin)
 }
 
-/// The readings at `t` of clocks started at `origins`.
-pub(crate) fn readings_at(origins: &[Time], t: Time) -> Vec<Option<Time>> {
-    origins.iter().map(|&o| reading(o, t)).collect()
+/// Room for every clock of a part, a power of two: a clock's index, masked,
+/// needs no bounds check.
+const CLOCK_ROOM: usize = 64;
+const _: () = assert!(MAX_CLOCKS <= CLOCK_ROOM);
+
+/// When each clock of a part last restarted ([`UNSTARTED`]: not yet), by
+/// clock index.
+#[derive(Debug, Clone)]
+pub(crate) struct Origins {
+    at: [Time; CLOCK_ROOM],
+    clocks: usize,
+}
+
+impl Origins {
+    /// `clocks` clocks, none started.
+    pub(crate) fn new(clocks: usize) -> Self {
+        Origins {
+            at: [UNSTARTED; CLOCK_ROOM],
+            clocks: clocks.min(CLOCK_ROOM),
+        }
+    }
+
+    /// Clock `c`'s origin.
+    #[inline(always)]
+    fn of(&self, c: usize) -> Time {
+        self.at[c % CLOCK_ROOM]
+    }
+
+    /// Every clock unknown again.
+    pub(crate) fn clear(&mut self) {
+        self.at = [UNSTARTED; CLOCK_ROOM];
+    }
+
+    /// The readings at `t`.
+    pub(crate) fn readings(&self, t: Time) -> Vec<Option<Time>> {
+        let mut into = Vec::new();
+        self.read_into(t, &mut into);
+        into
+    }
+
+    /// The readings at `t`, into `into`.
+    pub(crate) fn read_into(&self, t: Time, into: &mut Vec<Option<Time>>) {
+        into.clear();
+        into.extend(self.at[..self.clocks].iter().map(|&o| reading(o, t)));
+    }
 }
 
 /// The clocks a scan restarted, with their origins before it: what an
 /// explanation needs to read the clocks as they were before the step.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub(crate) struct Restarted {
     clocks: u64,
-    before: Vec<Time>,
+    before: [Time; CLOCK_ROOM],
+}
+
+impl Default for Restarted {
+    fn default() -> Self {
+        Restarted {
+            clocks: 0,
+            before: [UNSTARTED; CLOCK_ROOM],
+        }
+    }
 }
 
 impl Restarted {
@@ -257,16 +318,13 @@ impl Restarted {
 
     /// Restarts `clocks` at `t`, keeping their origins before.
     #[inline(always)]
-    fn restart(&mut self, clocks: u64, origins: &mut [Time], t: Time) {
-        if self.before.len() < origins.len() {
-            self.before.resize(origins.len(), UNSTARTED);
-        }
+    fn restart(&mut self, clocks: u64, origins: &mut Origins, t: Time) {
         self.clocks = clocks;
         let mut left = clocks;
         while left != 0 {
-            let c = left.trailing_zeros() as usize;
-            self.before[c] = origins[c];
-            origins[c] = t;
+            let c = left.trailing_zeros() as usize % CLOCK_ROOM;
+            self.before[c] = origins.at[c];
+            origins.at[c] = t;
             left &= left - 1;
         }
     }
@@ -276,7 +334,7 @@ impl Restarted {
     pub(crate) fn put_back(&self, readings: &mut [Option<Time>], t: Time) {
         let mut left = self.clocks;
         while left != 0 {
-            let c = left.trailing_zeros() as usize;
+            let c = left.trailing_zeros() as usize % CLOCK_ROOM;
             readings[c] = reading(self.before[c], t);
             left &= left - 1;
         }
@@ -294,8 +352,7 @@ impl Engine {
             index: HashMap::new(),
             labels: Vec::new(),
             label_index: HashMap::new(),
-            clocking: Vec::new(),
-            moves: Vec::new(),
+            tables: Vec::new(),
             restarts,
         }
     }
@@ -332,17 +389,17 @@ impl Engine {
         &self.labels[id as usize]
     }
 
-    /// State `id`'s labels index, and whether no mode explains the
-    /// observations in it: what a replay checks after every step.
-    #[inline]
-    pub(crate) fn outcome(&self, id: u32) -> (u32, bool) {
-        let c = &self.clocking[id as usize];
-        (c.labels, c.unknown)
+    /// State `id`'s labels index, with [`UNEXPLAINED`] when no mode
+    /// explains the observations in it: what a replay checks after every
+    /// step.
+    #[inline(always)]
+    pub(crate) fn outcome(&self, id: u32) -> u32 {
+        self.tables[id as usize].outcome
     }
 
     /// Transitions computed so far (on scans, on time).
     pub fn transitions(&self) -> (usize, usize) {
-        self.moves.iter().fold((0, 0), |(s, t), m| {
+        self.tables.iter().fold((0, 0), |(s, t), m| {
             (s + m.on_scan.len(), t + m.on_time.len())
         })
     }
@@ -368,9 +425,8 @@ impl Engine {
         let id = self.states.len() as u32;
         let thresholds: Vec<Box<[Time]>> = all.into_iter().map(Vec::into_boxed_slice).collect();
         let timers: Vec<Box<[Time]>> = timers.into_iter().map(Vec::into_boxed_slice).collect();
-        self.clocking
-            .push(Clocking::new(&thresholds, &timers, label_id, unknown));
-        self.moves.push(Moves::default());
+        self.tables
+            .push(StateTable::new(&thresholds, &timers, label_id, unknown));
         self.states.push(DiagnoserState {
             obs,
             hyps: key.1.clone(),
@@ -421,16 +477,16 @@ impl Engine {
     /// The region at `t` of the clocks started at `origins` ([`UNSTARTED`]:
     /// not yet): as [`Engine::region`] with the readings `t - origin`.
     #[inline(always)]
-    pub(crate) fn region_at(&self, id: u32, origins: &[Time], t: Time) -> u64 {
-        self.region_of(id, |c| reading(origins[c], t))
+    pub(crate) fn region_at(&self, id: u32, origins: &Origins, t: Time) -> u64 {
+        self.region_of(id, |c| reading(origins.of(c), t))
     }
 
     #[inline(always)]
     fn region_of(&self, id: u32, reading: impl Fn(usize) -> Option<Time>) -> u64 {
-        let clocking = &self.clocking[id as usize];
+        let table = &self.tables[id as usize];
         let mut region = 0u64;
-        for &span in &clocking.region {
-            let th = clocking.thresholds(span);
+        for &span in &table.region {
+            let th = table.thresholds(span);
             let idx = match reading(span.clock as usize) {
                 Some(v) => passed(th, v) as u64,
                 None => th.len() as u64 + 1,
@@ -443,7 +499,7 @@ impl Engine {
     /// The state after time has passed up to `readings`.
     pub fn advance(&mut self, id: u32, readings: &Readings) -> u32 {
         let region = self.region(id, readings);
-        match find(&self.moves[id as usize].on_time, region) {
+        match find(&self.tables[id as usize].on_time, region) {
             Some(next) => next,
             None => self.advance_new(id, region, readings),
         }
@@ -452,20 +508,24 @@ impl Engine {
     /// The state after time has passed up to `t`, for clocks started at
     /// `origins`: as [`Engine::advance`] with the readings `t - origin`.
     #[inline(always)]
-    pub(crate) fn advance_at(&mut self, id: u32, origins: &[Time], t: Time) -> u32 {
+    pub(crate) fn advance_at(&mut self, id: u32, origins: &Origins, t: Time) -> u32 {
         let region = self.region_at(id, origins, t);
-        match find(&self.moves[id as usize].on_time, region) {
+        match find(&self.tables[id as usize].on_time, region) {
             Some(next) => next,
-            None => self.advance_new(id, region, &readings_at(origins, t)),
+            None => self.advance_new(id, region, &origins.readings(t)),
         }
     }
 
     /// A deadline of state `id` at `at` passes, for clocks started at
-    /// `origins`: the state then, and its next timer.
+    /// `origins`.
     #[inline(always)]
-    pub(crate) fn fire_at(&mut self, id: u32, origins: &[Time], at: Time) -> (u32, Time) {
+    pub(crate) fn fire_at(&mut self, id: u32, origins: &Origins, at: Time) -> Step {
         let state = self.advance_at(id, origins, at);
-        (state, self.next_timer(state, origins, at))
+        Step {
+            state,
+            timer: self.next_timer(state, origins, at),
+            outcome: self.outcome(state),
+        }
     }
 
     /// Computes and keeps a transition on time not taken before.
@@ -476,7 +536,7 @@ impl Engine {
         let mut hyps = st.hyps.to_vec();
         self.part.close(obs, &mut hyps, readings);
         let next = self.intern(obs, hyps);
-        insert(&mut self.moves[id as usize].on_time, region, next);
+        insert(&mut self.tables[id as usize].on_time, region, next);
         next
     }
 
@@ -486,7 +546,7 @@ impl Engine {
     pub fn scan(&mut self, id: u32, changed: u32, before: &Readings, after: &Readings) -> u32 {
         let region = self.region(id, before);
         let i = self.scan_move(id, changed, region, before);
-        let stepped = self.moves[id as usize].on_scan[i].stepped;
+        let stepped = self.tables[id as usize].on_scan[i].stepped;
         self.advance(stepped, after)
     }
 
@@ -501,47 +561,56 @@ impl Engine {
         &mut self,
         id: u32,
         changed: u32,
-        origins: &mut [Time],
+        origins: &mut Origins,
         t: Time,
         restarted: &mut Restarted,
-    ) -> (u32, Time) {
+    ) -> Step {
         let region = self.region_at(id, origins, t);
-        let i = match find_scan(&self.moves[id as usize].on_scan, (changed, region)) {
+        let i = match find_scan(&self.tables[id as usize].on_scan, (changed, region)) {
             Ok(i) => i,
-            Err(_) => self.scan_move(id, changed, region, &readings_at(origins, t)),
+            Err(_) => self.scan_move(id, changed, region, &origins.readings(t)),
         };
-        let mv = self.moves[id as usize].on_scan[i];
+        let mv = self.tables[id as usize].on_scan[i];
         restarted.restart(mv.restarts, origins, t);
         if mv.settled == ScanMove::OPEN {
             return self.scan_settle(id, i, origins, t);
         }
-        let next = match mv.timer {
+        let timer = match mv.timer {
             ScanMove::OPEN_TIMER => self.next_timer(mv.settled, origins, t),
             NEVER => NEVER,
             after => t + after,
         };
-        (mv.settled, next)
+        Step {
+            state: mv.settled,
+            timer,
+            outcome: mv.outcome,
+        }
     }
 
     /// Time passes to the end of the scan move `i` of state `id` at `t`, and
     /// what of it depends only on the restarted clocks is kept in the move.
     #[cold]
     #[inline(never)]
-    fn scan_settle(&mut self, id: u32, i: usize, origins: &[Time], t: Time) -> (u32, Time) {
-        let mv = self.moves[id as usize].on_scan[i];
-        let (state, next) = self.fire_at(mv.stepped, origins, t);
+    fn scan_settle(&mut self, id: u32, i: usize, origins: &Origins, t: Time) -> Step {
+        let mv = self.tables[id as usize].on_scan[i];
+        let step = self.fire_at(mv.stepped, origins, t);
         let running = !mv.restarts;
         if self.region_follows(id, mv.stepped, running) {
-            let timer = if self.clocking[state as usize].timer_clocks & running == 0 {
-                if next == NEVER { NEVER } else { next - t }
+            let timer = if self.tables[step.state as usize].timer_clocks & running == 0 {
+                if step.timer == NEVER {
+                    NEVER
+                } else {
+                    step.timer - t
+                }
             } else {
                 ScanMove::OPEN_TIMER
             };
-            let kept = &mut self.moves[id as usize].on_scan[i];
-            kept.settled = state;
+            let kept = &mut self.tables[id as usize].on_scan[i];
+            kept.settled = step.state;
+            kept.outcome = step.outcome;
             kept.timer = timer;
         }
-        (state, next)
+        step
     }
 
     /// Whether the region of `stepped` right after a scan from `id` follows
@@ -549,10 +618,7 @@ impl Engine {
     /// (all read 0), or left `running` with thresholds that `id` reads too
     /// (the reading is the same, and where it falls among them is known).
     fn region_follows(&self, id: u32, stepped: u32, running: u64) -> bool {
-        let (before, after) = (
-            &self.clocking[id as usize],
-            &self.clocking[stepped as usize],
-        );
+        let (before, after) = (&self.tables[id as usize], &self.tables[stepped as usize]);
         if after.region_clocks & running & !before.region_clocks != 0 {
             return false;
         }
@@ -575,7 +641,7 @@ impl Engine {
     /// The index of the move on a scan that changed `changed` in `region`
     /// of state `id` (`before`: the readings), computed and kept if new.
     fn scan_move(&mut self, id: u32, changed: u32, region: u64, before: &Readings) -> usize {
-        match find_scan(&self.moves[id as usize].on_scan, (changed, region)) {
+        match find_scan(&self.tables[id as usize].on_scan, (changed, region)) {
             Ok(i) => i,
             Err(i) => {
                 self.scan_new(id, changed, region, before, i);
@@ -599,7 +665,7 @@ impl Engine {
             .filter(|(_, (rise, fall))| rises & rise | falls & fall != 0)
             .fold(0u64, |m, (c, _)| m | 1 << c);
         let stepped = self.intern(after, hyps);
-        self.moves[id as usize].on_scan.insert(
+        self.tables[id as usize].on_scan.insert(
             i,
             ScanMove {
                 changed,
@@ -607,6 +673,7 @@ impl Engine {
                 stepped,
                 restarts,
                 settled: ScanMove::OPEN,
+                outcome: 0,
                 timer: ScanMove::OPEN_TIMER,
             },
         );
@@ -616,15 +683,15 @@ impl Engine {
     /// given the clocks' origins ([`UNSTARTED`]: not yet observed) and the
     /// present time `now`.
     #[inline(always)]
-    pub(crate) fn next_timer(&self, id: u32, origins: &[Time], now: Time) -> Time {
-        let clocking = &self.clocking[id as usize];
+    pub(crate) fn next_timer(&self, id: u32, origins: &Origins, now: Time) -> Time {
+        let table = &self.tables[id as usize];
         let mut next = NEVER;
-        for &span in &clocking.timers {
-            let o = origins[span.clock as usize];
+        for &span in &table.timers {
+            let o = origins.of(span.clock as usize);
             if o == UNSTARTED {
                 continue;
             }
-            let th = clocking.thresholds(span);
+            let th = table.thresholds(span);
             if let Some(&x) = th.get(passed(th, now - o)) {
                 next = next.min(o + x);
             }

@@ -6,7 +6,7 @@
 //! scans in time order and combines their verdicts, and
 //! [`super::PartwiseReplay`] runs the parts of a recorded log side by side.
 
-use super::engine::{Engine, NEVER, Restarted, UNSTARTED, readings_at};
+use super::engine::{Engine, NEVER, Origins, Restarted, UNEXPLAINED};
 use super::run::PartSummary;
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
 use crate::{Flag, Time, TimeUnit};
@@ -16,8 +16,8 @@ use crate::{Flag, Time, TimeUnit};
 struct RunState {
     state: u32,
     obs: u32,
-    /// When each clock last restarted ([`UNSTARTED`]: not yet).
-    origins: Vec<Time>,
+    /// When each clock last restarted.
+    origins: Origins,
     /// Raised flags, as partition bits (sticky).
     flags: u32,
     /// Labels index of the last verdict given.
@@ -30,6 +30,19 @@ struct RunState {
     detected: Option<Time>,
     /// The unknown episode the part is in, if any.
     episode: Option<Episode>,
+    /// The outcome ([`Engine::outcome`]) of a step with nothing to report:
+    /// the labels shown, while no episode is under way; else none.
+    quiet: u32,
+}
+
+impl RunState {
+    /// What [`RunState::quiet`] is, from the labels shown and the episode.
+    fn quiet(&self) -> u32 {
+        match self.episode {
+            None => self.shown,
+            Some(_) => u32::MAX,
+        }
+    }
 }
 
 /// An unknown episode: from observations that no mode of the part explains
@@ -101,13 +114,14 @@ impl PartRun {
             at: RunState {
                 state: 0,
                 obs: 0,
-                origins: Vec::new(),
+                origins: Origins::new(0),
                 flags: 0,
                 shown: 0,
                 next_timer: NEVER,
                 last_command: None,
                 detected: None,
                 episode: None,
+                quiet: u32::MAX,
             },
             unit,
             polled,
@@ -126,8 +140,8 @@ impl PartRun {
         let obs = e.part.signals.iter().enumerate().fold(0u32, |v, (b, s)| {
             v | (u32::from(initial.get(s.index()).copied().unwrap_or(false)) << b)
         });
-        let origins = vec![UNSTARTED; e.part.clocks.len()];
-        let state = e.initial(obs, &readings_at(&origins, 0));
+        let origins = Origins::new(e.part.clocks.len());
+        let state = e.initial(obs, &origins.readings(0));
         let shown = e.state(state).labels;
         self.at = RunState {
             state,
@@ -139,6 +153,7 @@ impl PartRun {
             last_command: None,
             detected: None,
             episode: None,
+            quiet: shown,
         };
         self.changes = 0;
     }
@@ -166,10 +181,10 @@ impl PartRun {
         self.undo.clear();
         self.before_at = at;
         let previous = self.at.state;
-        (self.at.state, self.at.next_timer) =
-            self.engine.fire_at(self.at.state, &self.at.origins, at);
+        let step = self.engine.fire_at(self.at.state, &self.at.origins, at);
+        (self.at.state, self.at.next_timer) = (step.state, step.timer);
         // The deadline itself is the last moment the event could still have come.
-        self.settle(at - 1, previous, None)
+        self.settle(at - 1, previous, None, step.outcome)
     }
 
     /// The part's scan at `t` changed the bits `changed` (not 0); every
@@ -178,12 +193,13 @@ impl PartRun {
     pub(crate) fn scan(&mut self, t: Time, changed: u32) -> Option<Verdict> {
         let previous = self.at.state;
         let obs_before = self.at.obs;
-        if self.polled {
+        let outcome = if self.polled {
             self.polled_step(t, changed);
+            self.engine.outcome(self.at.state)
         } else {
-            self.step(t, changed);
-        }
-        self.settle(t, previous, Some((obs_before, changed)))
+            self.step(t, changed)
+        };
+        self.settle(t, previous, Some((obs_before, changed)), outcome)
     }
 
     /// A polled scan: one step, tried again as two where it is not normal
@@ -211,20 +227,23 @@ impl PartRun {
         }
     }
 
-    /// The edges `changed` at `t`: their clocks start, and the state moves on.
+    /// The edges `changed` at `t`: their clocks start, and the state moves
+    /// on. Gives the outcome of the state reached.
     #[inline(always)]
-    fn step(&mut self, t: Time, changed: u32) {
+    fn step(&mut self, t: Time, changed: u32) -> u32 {
         let run = &mut self.at;
         self.before_at = t;
         let obs_before = run.obs;
-        (run.state, run.next_timer) =
-            self.engine
-                .scan_step(run.state, changed, &mut run.origins, t, &mut self.undo);
+        let step = self
+            .engine
+            .scan_step(run.state, changed, &mut run.origins, t, &mut self.undo);
+        (run.state, run.next_timer) = (step.state, step.timer);
         run.obs ^= changed;
         let acts = self.engine.part.actuator_mask();
         if changed & acts != 0 {
             run.last_command = Some((obs_before, changed & acts));
         }
+        step.outcome
     }
 
     /// A polled scan that one step does not explain as normal: the orders
@@ -266,14 +285,20 @@ impl PartRun {
     /// starts an unknown episode when nothing explains the part any more, and
     /// ends one when the part has run a learned cycle again.
     #[inline(always)]
-    fn settle(&mut self, t: Time, previous: u32, scan: Option<(u32, u32)>) -> Option<Verdict> {
-        let run = &self.at;
-        let (shown, unknown) = self.engine.outcome(run.state);
+    fn settle(
+        &mut self,
+        t: Time,
+        previous: u32,
+        scan: Option<(u32, u32)>,
+        outcome: u32,
+    ) -> Option<Verdict> {
         // The common case: nothing to report, no episode to follow.
-        if shown == run.shown && run.episode.is_none() && !unknown {
+        if outcome == self.at.quiet {
             return None;
         }
-        self.settle_change(t, previous, scan, unknown)
+        let verdict = self.settle_change(t, previous, scan, outcome & UNEXPLAINED != 0);
+        self.at.quiet = self.at.quiet();
+        verdict
     }
 
     #[cold]
@@ -315,8 +340,8 @@ impl PartRun {
     /// unknown (see [`Episode`]).
     fn start_again(&mut self, t: Time) {
         let (engine, run) = (&mut self.engine, &mut self.at);
-        run.origins.iter_mut().for_each(|o| *o = UNSTARTED);
-        read(&run.origins, t, &mut self.after);
+        run.origins.clear();
+        run.origins.read_into(t, &mut self.after);
         run.state = engine.resync(run.obs, &self.after);
         run.next_timer = engine.next_timer(run.state, &run.origins, t);
         let mut episode = run.episode.unwrap_or(Episode {
@@ -350,7 +375,7 @@ impl PartRun {
         let labels = engine.labels(now);
         let unknown = !labels.normal && labels.modes.is_empty();
         // The readings before the step: its restarted clocks put back.
-        read(&run.origins, self.before_at, &mut self.before);
+        run.origins.read_into(self.before_at, &mut self.before);
         self.undo.put_back(&mut self.before, self.before_at);
         let mut reason = reason.unwrap_or_else(|| {
             super::explain::reason(
@@ -434,9 +459,4 @@ impl PartRun {
             reason,
         }
     }
-}
-
-fn read(origins: &[Time], t: Time, into: &mut Vec<Option<Time>>) {
-    into.clear();
-    into.extend(origins.iter().map(|&o| (o != UNSTARTED).then(|| t - o)));
 }

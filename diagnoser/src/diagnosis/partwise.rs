@@ -26,7 +26,7 @@ use std::sync::Mutex;
 
 use super::fusion::Coordinator;
 use super::part_run::PartRun;
-use super::run::{PartSummary, PlantDiagnoser, Routes, plant_summary};
+use super::run::{PartSummary, PlantDiagnoser, Route, Routes, plant_summary};
 use super::verdict::Verdict;
 use crate::{Event, Time};
 
@@ -37,6 +37,60 @@ struct PartScan {
     t: Time,
     order: u64,
     changed: u32,
+}
+
+/// The scan of a part being read: its time ([`NO_SCAN`]: none yet), its
+/// order, the bits changed so far, and the part's observed vector before it.
+#[derive(Debug, Clone, Copy)]
+struct OpenScan {
+    t: Time,
+    order: u64,
+    changed: u32,
+    obs: u32,
+}
+
+/// The time of an open scan not begun.
+const NO_SCAN: Time = Time::MIN;
+
+impl OpenScan {
+    fn new(obs: u32) -> Self {
+        OpenScan {
+            t: NO_SCAN,
+            order: 0,
+            changed: 0,
+            obs,
+        }
+    }
+
+    /// Event `e`, the `seen`-th of the log, at bit `bit` of part `part`,
+    /// whose complete scans go to `scans`.
+    #[inline(always)]
+    fn read(&mut self, e: &Event, seen: u64, part: u16, bit: u8, scans: &mut Vec<PartScan>) {
+        if self.t != e.t {
+            self.close(scans);
+            self.t = e.t;
+            self.order = seen << 16 | u64::from(part);
+        }
+        let mask = 1u32 << bit;
+        if ((self.obs ^ self.changed) & mask != 0) != e.value {
+            self.changed ^= mask;
+        }
+    }
+
+    /// The scan is complete: it goes to `scans` if it changed anything.
+    #[inline(always)]
+    fn close(&mut self, scans: &mut Vec<PartScan>) {
+        if self.changed != 0 {
+            scans.push(PartScan {
+                t: self.t,
+                order: self.order,
+                changed: self.changed,
+            });
+            self.obs ^= self.changed;
+            self.changed = 0;
+        }
+        self.t = NO_SCAN;
+    }
 }
 
 /// Where a verdict falls in the plant diagnoser's output: deadlines at a
@@ -53,28 +107,17 @@ pub struct PartwiseReplay {
     routes: Routes,
     coordinator: Coordinator,
     threads: usize,
-    /// Per part, its complete scans not run yet.
+    /// Per part, its scan being read.
+    open: Vec<OpenScan>,
+    /// Per part, its complete scans not run yet, in time order.
     scans: Vec<Vec<PartScan>>,
-    /// Per part, the observed vector after its last complete scan.
-    obs: Vec<u32>,
-    /// Per part, the bits the scan being read changed, with [`OPEN`] once
-    /// the scan has touched the part.
-    open: Vec<u32>,
-    /// Per part, its place among the parts of the scan being read.
-    order: Vec<u64>,
-    /// Parts with an open scan, in order.
-    touched: Vec<u16>,
-    /// Time of the scan being read.
+    /// Time of the last event read: its scan may go on in the next batch.
     scan: Option<Time>,
     /// Time of the last complete scan: deadlines up to it are due.
     complete: Option<Time>,
     /// Events read, for the parts' order in a scan.
     seen: u64,
 }
-
-/// Marks a part the scan being read touched, beside its changed bits (a
-/// part has at most 16 signals).
-const OPEN: u32 = 1 << 31;
 
 impl PartwiseReplay {
     /// The parts of `diagnoser`, replayed on up to `threads` threads (at
@@ -87,11 +130,8 @@ impl PartwiseReplay {
             routes,
             coordinator,
             threads: threads.max(1),
+            open: vec![OpenScan::new(0); n],
             scans: vec![Vec::new(); n],
-            obs: vec![0; n],
-            open: vec![0; n],
-            order: vec![0; n],
-            touched: Vec::new(),
             scan: None,
             complete: None,
             seen: 0,
@@ -104,11 +144,9 @@ impl PartwiseReplay {
         self.coordinator.reset();
         for (p, r) in self.parts.iter_mut().enumerate() {
             r.start(initial);
-            self.obs[p] = r.obs();
+            self.open[p] = OpenScan::new(r.obs());
             self.scans[p].clear();
-            self.open[p] = 0;
         }
-        self.touched.clear();
         self.scan = None;
         self.complete = None;
         self.seen = 0;
@@ -118,9 +156,36 @@ impl PartwiseReplay {
     /// batch completes go to `out`. The last time's events wait for the next
     /// batch, which may hold more of that scan.
     pub fn push_batch(&mut self, events: &[Event], out: &mut impl FnMut(Verdict)) {
-        for &e in events {
-            self.read(e);
+        let Some(last) = events.last().map(|e| e.t) else {
+            return;
+        };
+        let (routes, open, scans) = (&self.routes, &mut self.open, &mut self.scans);
+        let mut read = |part: u16, e: &Event, seen: u64, bit: u8| {
+            let p = part as usize;
+            if let (Some(open), Some(scans)) = (open.get_mut(p), scans.get_mut(p)) {
+                open.read(e, seen, part, bit, scans);
+            }
+        };
+        for (i, e) in events.iter().enumerate() {
+            let seen = self.seen + i as u64;
+            let s = e.signal.index();
+            match routes.route(s) {
+                Route::One(part, bit) => read(part, e, seen, bit),
+                Route::None => {}
+                Route::Several => {
+                    for &(part, bit) in routes.of(s) {
+                        read(part, e, seen, bit);
+                    }
+                }
+            }
         }
+        self.seen += events.len() as u64;
+        // Every scan before the last time read is complete.
+        let before = events.iter().rev().find(|e| e.t != last).map(|e| e.t);
+        if let Some(t) = before.or(self.scan.filter(|&t| t != last)) {
+            self.complete = Some(t);
+        }
+        self.scan = Some(last);
         if let Some(t) = self.complete {
             self.run(t, out);
         }
@@ -128,7 +193,9 @@ impl PartwiseReplay {
 
     /// Ends the replay at `end`, as [`PlantDiagnoser::finish`].
     pub fn finish(&mut self, end: Time, out: &mut impl FnMut(Verdict)) -> Vec<PartSummary> {
-        self.close_scan();
+        if let Some(t) = self.scan.take() {
+            self.complete = Some(t);
+        }
         let upto = self.complete.map_or(end, |t| t.max(end));
         self.run(upto, out);
         self.parts.iter().map(PartRun::summary).collect()
@@ -140,51 +207,14 @@ impl PartwiseReplay {
         plant_summary(&mut self.coordinator, t, summaries)
     }
 
-    /// Routes one event to the open scans of the parts that read its signal.
-    #[inline]
-    fn read(&mut self, e: Event) {
-        if self.scan != Some(e.t) {
-            self.close_scan();
-            self.scan = Some(e.t);
-        }
-        let seen = self.seen;
-        self.seen += 1;
-        for &(part, bit) in self.routes.of(e.signal.index()) {
-            let p = part as usize;
-            let open = &mut self.open[p];
-            if *open == 0 {
-                self.touched.push(part);
-                self.order[p] = seen << 16 | u64::from(part);
-                *open = OPEN;
-            }
-            let mask = 1u32 << bit;
-            if ((self.obs[p] ^ *open) & mask != 0) != e.value {
-                *open ^= mask;
-            }
-        }
-    }
-
-    /// The scan being read is complete: each part that changed takes it.
-    fn close_scan(&mut self) {
-        let Some(t) = self.scan.take() else {
-            return;
-        };
-        for &part in &self.touched {
-            let p = part as usize;
-            let changed = std::mem::take(&mut self.open[p]) & !OPEN;
-            if changed != 0 {
-                self.obs[p] ^= changed;
-                let order = self.order[p];
-                self.scans[p].push(PartScan { t, order, changed });
-            }
-        }
-        self.touched.clear();
-        self.complete = Some(t);
-    }
-
-    /// Runs every part through its complete scans and its deadlines up to
-    /// `upto`, then gives their verdicts in the plant diagnoser's order.
+    /// Runs every part through its scans and its deadlines up to `upto`,
+    /// then gives their verdicts in the plant diagnoser's order.
     fn run(&mut self, upto: Time, out: &mut impl FnMut(Verdict)) {
+        for (open, scans) in self.open.iter_mut().zip(&mut self.scans) {
+            if open.t != NO_SCAN && open.t <= upto {
+                open.close(scans);
+            }
+        }
         let mut verdicts = self.run_parts(upto);
         verdicts.sort_by_key(|(place, _, _)| *place);
         for (_, p, v) in verdicts {
@@ -196,17 +226,15 @@ impl PartwiseReplay {
         }
     }
 
-    /// Each part's verdicts, with their places, from its pending scans and
-    /// deadlines up to `upto`.
+    /// Each part's verdicts, with their places, from its complete scans and
+    /// its deadlines up to `upto`.
     fn run_parts(&mut self, upto: Time) -> Vec<(Place, usize, Verdict)> {
         let mut work: Vec<_> = self
             .parts
             .iter_mut()
             .zip(self.scans.iter_mut())
             .enumerate()
-            .filter(|(_, (r, scans))| {
-                !scans.is_empty() || r.next_timer().is_some_and(|x| x <= upto)
-            })
+            .filter(|(_, (r, scans))| !scans.is_empty() || r.deadline() <= upto)
             .map(|(p, (r, scans))| (p, r, scans))
             .collect();
         let threads = self.threads.min(work.len());

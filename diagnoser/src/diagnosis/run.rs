@@ -321,12 +321,29 @@ pub(crate) fn plant_summary(
 /// order, in one flat array.
 #[derive(Debug, Clone)]
 pub(crate) struct Routes {
-    /// Signal `s`'s routes are `routes[spans[s]..spans[s + 1]]`.
-    spans: Vec<u32>,
+    /// Signal `s`'s routes are `routes[spans[s].0..spans[s].1]`.
+    spans: Vec<(u32, u32)>,
     routes: Vec<(u16, u8)>,
+    /// Per signal, its one route as `part << 8 | bit`, or [`Route::None`]'s
+    /// or [`Route::Several`]'s code: most signals belong to one part.
+    single: Vec<u32>,
+}
+
+/// Where one event goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Route {
+    /// To no part.
+    None,
+    /// To one part, at one bit.
+    One(u16, u8),
+    /// To several parts ([`Routes::of`]).
+    Several,
 }
 
 impl Routes {
+    const NONE: u32 = u32::MAX;
+    const SEVERAL: u32 = u32::MAX - 1;
+
     /// The routes of `plant`'s signals to `parts`.
     pub(crate) fn new(plant: &Plant, parts: &[PartRun]) -> Self {
         let mut per_signal = vec![Vec::new(); plant.signals.len()];
@@ -337,23 +354,44 @@ impl Routes {
                 }
             }
         }
-        let mut spans = vec![0u32];
+        let mut spans = Vec::new();
+        let mut from = 0u32;
         for r in &per_signal {
-            spans.push(spans[spans.len() - 1] + r.len() as u32);
+            spans.push((from, from + r.len() as u32));
+            from += r.len() as u32;
         }
+        let single = per_signal
+            .iter()
+            .map(|r| match r[..] {
+                [] => Self::NONE,
+                [(part, bit)] => u32::from(part) << 8 | u32::from(bit),
+                _ => Self::SEVERAL,
+            })
+            .collect();
         Routes {
             spans,
             routes: per_signal.concat(),
+            single,
         }
     }
 
     /// The parts that read signal `s`, and at which bit (none for a signal
     /// of no part, or not of the plant).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn of(&self, s: usize) -> &[(u16, u8)] {
-        match (self.spans.get(s), self.spans.get(s + 1)) {
-            (Some(&from), Some(&to)) => &self.routes[from as usize..to as usize],
-            _ => &[],
+        match self.spans.get(s) {
+            Some(&(from, to)) => self.routes.get(from as usize..to as usize).unwrap_or(&[]),
+            None => &[],
+        }
+    }
+
+    /// Where an event of signal `s` goes.
+    #[inline(always)]
+    pub(crate) fn route(&self, s: usize) -> Route {
+        match self.single.get(s).copied().unwrap_or(Self::NONE) {
+            Self::NONE => Route::None,
+            Self::SEVERAL => Route::Several,
+            one => Route::One((one >> 8) as u16, one as u8),
         }
     }
 }
