@@ -9,10 +9,15 @@
 //! the part of the automaton a log visits is exactly seed 002's diagnoser
 //! (Fig. 12), states labelled with their fault labels.
 //!
-//! The replay's hot path ([`Engine::scan_at`], [`Engine::advance_at`],
-//! [`Engine::next_timer`]) reads the clocks from their origins and the present
-//! time, and finds a state's transitions in the state's own sorted table: no
-//! hashing and no allocation once the transition is known.
+//! The replay's hot path (`scan_step`, `fire_at`) reads the clocks from
+//! their origins and the present time, and finds a state's transitions in
+//! the state's own sorted table: no hashing and no allocation once the
+//! transition is known. A scan's move also keeps what follows from its key
+//! (the region before the scan): the state once time has passed to the
+//! scan's end, and which threshold of each timer clock comes next, when the
+//! clocks the scan left running are read by that region with the same
+//! thresholds (`region_follows`, `timer_memo`). Most scans then cost one
+//! region and one lookup.
 
 use std::collections::HashMap;
 
@@ -92,15 +97,13 @@ struct StateTable {
     at: Box<[Time]>,
     /// The clocks of `region`, as bits.
     region_clocks: u64,
-    /// The clocks of `timers`, as bits.
-    timer_clocks: u64,
     /// Index of the state's labels, with [`UNEXPLAINED`] when no mode
     /// explains the observations.
     outcome: u32,
     /// By (changed bits, region before the scan).
     on_scan: Vec<ScanMove>,
-    /// Region to the state after time has passed.
-    on_time: Vec<(u64, u32)>,
+    /// By region: the state after time has passed.
+    on_time: Vec<TimeMove>,
 }
 
 impl StateTable {
@@ -126,13 +129,12 @@ impl StateTable {
             (spans, clocks)
         };
         let (region, region_clocks) = spans(thresholds);
-        let (timers, timer_clocks) = spans(timers);
+        let (timers, _) = spans(timers);
         StateTable {
             region,
             timers,
             at: at.into_boxed_slice(),
             region_clocks,
-            timer_clocks,
             outcome: labels | if unknown { UNEXPLAINED } else { 0 },
             on_scan: Vec::new(),
             on_time: Vec::new(),
@@ -175,28 +177,83 @@ struct ScanMove {
     settled: u32,
     /// The outcome of `settled` ([`Engine::outcome`]).
     outcome: u32,
-    /// When `settled` is known and its timers too read only restarted
-    /// clocks: its next timer, after the scan ([`NEVER`]: none); else
-    /// [`ScanMove::OPEN_TIMER`].
-    timer: Time,
+    /// The next timer of `settled`, when known.
+    timer: TimerMemo,
 }
 
 impl ScanMove {
     const OPEN: u32 = u32::MAX;
-    const OPEN_TIMER: Time = Time::MIN;
 }
 
-/// The value for `key` in a table sorted by key.
-#[inline]
-fn find<K: Ord + Copy>(table: &[(K, u32)], key: K) -> Option<u32> {
+/// A state's transition on time passing.
+#[derive(Debug, Clone, Copy)]
+struct TimeMove {
+    /// The region when time has passed.
+    region: u64,
+    /// The state then.
+    state: u32,
+    /// Its outcome ([`Engine::outcome`]).
+    outcome: u32,
+}
+
+/// The next timer after a scan move, when the move's key (its region)
+/// tells which threshold of each clock comes next: then it is the earliest
+/// of at most two clocks' origins plus a threshold.
+#[derive(Debug, Clone, Copy)]
+struct TimerMemo {
+    /// How many of `clocks`, or [`TimerMemo::OPEN`].
+    count: u8,
+    clocks: [u8; 2],
+    after: [Time; 2],
+}
+
+impl TimerMemo {
+    /// Not told by the move: read again each time.
+    const OPEN: u8 = 255;
+
+    const fn of(count: u8) -> Self {
+        TimerMemo {
+            count,
+            clocks: [0; 2],
+            after: [0; 2],
+        }
+    }
+
+    /// Adds clock `c`'s next threshold `x`; `false` if full.
+    fn push(&mut self, c: u8, x: Time) -> bool {
+        let k = self.count as usize;
+        if k >= self.clocks.len() {
+            return false;
+        }
+        (self.clocks[k], self.after[k]) = (c, x);
+        self.count += 1;
+        true
+    }
+
+    /// The next timer, for clocks started at `origins`; `None` unless
+    /// worked out.
+    #[inline(always)]
+    fn next(&self, origins: &Origins) -> Option<Time> {
+        let n = self.count as usize;
+        let (clocks, after) = (self.clocks.get(..n)?, self.after.get(..n)?);
+        let mut next = NEVER;
+        for (&c, &x) in clocks.iter().zip(after) {
+            next = next.min(origins.of(usize::from(c)) + x);
+        }
+        Some(next)
+    }
+}
+
+/// Where the move on `region` is in a table of time moves sorted by region.
+#[inline(always)]
+fn find_time(table: &[TimeMove], region: u64) -> Result<usize, usize> {
     // A state has a handful of transitions: a plain scan beats a binary search.
     if table.len() <= 8 {
-        return table.iter().find(|(k, _)| *k == key).map(|&(_, v)| v);
+        if let Some(i) = table.iter().position(|m| m.region == region) {
+            return Ok(i);
+        }
     }
-    table
-        .binary_search_by(|(k, _)| k.cmp(&key))
-        .ok()
-        .map(|i| table[i].1)
+    table.binary_search_by(|m| m.region.cmp(&region))
 }
 
 /// Where the move on `key` is in a table of scan moves sorted by key.
@@ -208,13 +265,6 @@ fn find_scan(table: &[ScanMove], key: (u32, u64)) -> Result<usize, usize> {
         }
     }
     table.binary_search_by(|m| (m.changed, m.region).cmp(&key))
-}
-
-/// Adds `key` to a table sorted by key.
-fn insert<K: Ord + Copy>(table: &mut Vec<(K, u32)>, key: K, value: u32) {
-    if let Err(i) = table.binary_search_by(|(k, _)| k.cmp(&key)) {
-        table.insert(i, (key, value));
-    }
 }
 
 /// The origin of a clock whose first edge has not been seen: its reading
@@ -499,45 +549,107 @@ impl Engine {
     /// The state after time has passed up to `readings`.
     pub fn advance(&mut self, id: u32, readings: &Readings) -> u32 {
         let region = self.region(id, readings);
-        match find(&self.tables[id as usize].on_time, region) {
-            Some(next) => next,
-            None => self.advance_new(id, region, readings),
-        }
+        let i = self.time_move(id, region, readings);
+        self.tables[id as usize].on_time[i].state
     }
 
-    /// The state after time has passed up to `t`, for clocks started at
-    /// `origins`: as [`Engine::advance`] with the readings `t - origin`.
-    #[inline(always)]
-    pub(crate) fn advance_at(&mut self, id: u32, origins: &Origins, t: Time) -> u32 {
-        let region = self.region_at(id, origins, t);
-        match find(&self.tables[id as usize].on_time, region) {
-            Some(next) => next,
-            None => self.advance_new(id, region, &origins.readings(t)),
-        }
-    }
-
-    /// A deadline of state `id` at `at` passes, for clocks started at
-    /// `origins`.
+    /// A deadline of state `id` at `at` passes (or time passes to `at`), for
+    /// clocks started at `origins`.
     #[inline(always)]
     pub(crate) fn fire_at(&mut self, id: u32, origins: &Origins, at: Time) -> Step {
-        let state = self.advance_at(id, origins, at);
+        let region = self.region_at(id, origins, at);
+        let table = &self.tables[id as usize];
+        let Ok(i) = find_time(&table.on_time, region) else {
+            return self.fire_new(id, region, origins, at);
+        };
+        let mv = table.on_time[i];
         Step {
-            state,
-            timer: self.next_timer(state, origins, at),
-            outcome: self.outcome(state),
+            state: mv.state,
+            timer: self.next_timer(mv.state, origins, at),
+            outcome: mv.outcome,
         }
     }
 
-    /// Computes and keeps a transition on time not taken before.
+    /// [`Engine::fire_at`] on a region not met before.
     #[cold]
-    fn advance_new(&mut self, id: u32, region: u64, readings: &Readings) -> u32 {
+    #[inline(never)]
+    fn fire_new(&mut self, id: u32, region: u64, origins: &Origins, at: Time) -> Step {
+        let i = self.time_move(id, region, &origins.readings(at));
+        let mv = self.tables[id as usize].on_time[i];
+        Step {
+            state: mv.state,
+            timer: self.next_timer(mv.state, origins, at),
+            outcome: mv.outcome,
+        }
+    }
+
+    /// The index of the move of state `id` on time passing to `region`
+    /// (`readings`: the clocks then), computed and kept if new.
+    fn time_move(&mut self, id: u32, region: u64, readings: &Readings) -> usize {
+        match find_time(&self.tables[id as usize].on_time, region) {
+            Ok(i) => i,
+            Err(i) => {
+                self.advance_new(id, region, readings, i);
+                i
+            }
+        }
+    }
+
+    /// Computes and keeps, at `i`, a transition on time not taken before.
+    #[cold]
+    fn advance_new(&mut self, id: u32, region: u64, readings: &Readings, i: usize) {
         let st = &self.states[id as usize];
         let obs = st.obs;
         let mut hyps = st.hyps.to_vec();
         self.part.close(obs, &mut hyps, readings);
-        let next = self.intern(obs, hyps);
-        insert(&mut self.tables[id as usize].on_time, region, next);
-        next
+        let state = self.intern(obs, hyps);
+        let mv = TimeMove {
+            region,
+            state,
+            outcome: self.outcome(state),
+        };
+        self.tables[id as usize].on_time.insert(i, mv);
+    }
+
+    /// The next timer of state `to`, reached from state `from` at `t` by a
+    /// scan move whose key is the region of `from` at `t` (the clocks
+    /// `restarted` at `t` by it, with origins `origins` after), when every
+    /// move with that key gives the same next thresholds: each of `to`'s
+    /// timer clocks restarted, or read by `from`'s region with timers among
+    /// its thresholds. Else [`TimerMemo::OPEN`].
+    fn timer_memo(
+        &self,
+        from: u32,
+        to: u32,
+        restarted: u64,
+        origins: &Origins,
+        t: Time,
+    ) -> TimerMemo {
+        let (before, after) = (&self.tables[from as usize], &self.tables[to as usize]);
+        let mut memo = TimerMemo::of(0);
+        for &span in &after.timers {
+            let th = after.thresholds(span);
+            let o = origins.of(span.clock as usize);
+            if restarted >> span.clock & 1 == 0 {
+                let known = before.region.iter().find(|b| b.clock == span.clock);
+                let Some(&known) = known else {
+                    return TimerMemo::of(TimerMemo::OPEN);
+                };
+                let known = before.thresholds(known);
+                if !th.iter().all(|x| known.binary_search(x).is_ok()) {
+                    return TimerMemo::of(TimerMemo::OPEN);
+                }
+                if o == UNSTARTED {
+                    continue;
+                }
+            }
+            if let Some(&x) = th.get(passed(th, t - o))
+                && !memo.push(span.clock as u8, x)
+            {
+                return TimerMemo::of(TimerMemo::OPEN);
+            }
+        }
+        memo
     }
 
     /// The state after a scan that changed the observed bits `changed`;
@@ -575,10 +687,9 @@ impl Engine {
         if mv.settled == ScanMove::OPEN {
             return self.scan_settle(id, i, origins, t);
         }
-        let timer = match mv.timer {
-            ScanMove::OPEN_TIMER => self.next_timer(mv.settled, origins, t),
-            NEVER => NEVER,
-            after => t + after,
+        let timer = match mv.timer.next(origins) {
+            Some(timer) => timer,
+            None => self.next_timer(mv.settled, origins, t),
         };
         Step {
             state: mv.settled,
@@ -594,17 +705,8 @@ impl Engine {
     fn scan_settle(&mut self, id: u32, i: usize, origins: &Origins, t: Time) -> Step {
         let mv = self.tables[id as usize].on_scan[i];
         let step = self.fire_at(mv.stepped, origins, t);
-        let running = !mv.restarts;
-        if self.region_follows(id, mv.stepped, running) {
-            let timer = if self.tables[step.state as usize].timer_clocks & running == 0 {
-                if step.timer == NEVER {
-                    NEVER
-                } else {
-                    step.timer - t
-                }
-            } else {
-                ScanMove::OPEN_TIMER
-            };
+        if self.region_follows(id, mv.stepped, !mv.restarts) {
+            let timer = self.timer_memo(id, step.state, mv.restarts, origins, t);
             let kept = &mut self.tables[id as usize].on_scan[i];
             kept.settled = step.state;
             kept.outcome = step.outcome;
@@ -674,7 +776,7 @@ impl Engine {
                 restarts,
                 settled: ScanMove::OPEN,
                 outcome: 0,
-                timer: ScanMove::OPEN_TIMER,
+                timer: TimerMemo::of(TimerMemo::OPEN),
             },
         );
     }
