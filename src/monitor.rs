@@ -16,7 +16,7 @@ use runtime::monitor::{Config, SourceConfig};
 
 /// Arguments of `gardefou monitor`.
 #[derive(Debug, Args)]
-#[command(group(clap::ArgGroup::new("source").required(true).args(["modbus", "can", "replay", "stdin"])))]
+#[command(group(clap::ArgGroup::new("source").required(true).args(["modbus", "can", "mqtt", "replay", "stdin"])))]
 pub struct MonitorArgs {
     /// Plant file: signals, parts, faults, partitions and the register map.
     #[arg(long)]
@@ -33,6 +33,15 @@ pub struct MonitorArgs {
     /// from UDP datagrams instead (16-byte SocketCAN `can_frame`s).
     #[arg(long, value_name = "IFACE")]
     can: Option<String>,
+    /// Read the plant from an MQTT broker (`mqtt://HOST:PORT`) as the
+    /// metrics of a Sparkplug B edge node (`--sparkplug`), by signal name,
+    /// and write the flags back to it as commands.
+    #[arg(long, value_name = "URL", requires = "sparkplug")]
+    mqtt: Option<String>,
+    /// The Sparkplug B edge node whose metrics are the plant's signals, or
+    /// one of its devices: `GROUP/EDGE` or `GROUP/EDGE/DEVICE`.
+    #[arg(long, value_name = "GROUP/EDGE[/DEVICE]", requires = "mqtt")]
+    sparkplug: Option<String>,
     /// Replay a log (any form) at its recorded pace, times `--speed`.
     #[arg(long, value_name = "LOG")]
     replay: Option<PathBuf>,
@@ -44,9 +53,11 @@ pub struct MonitorArgs {
     #[arg(long)]
     stdin: bool,
     /// How late (in the source's time) a line on standard input may come
-    /// after a later one; later than that, it is a warning and ignored.
-    #[arg(long, value_parser = time::parse_duration, default_value = "0ms")]
-    lateness: Time,
+    /// after a later one, or a Sparkplug B message after the time its node's
+    /// last one says; later than that, it is a warning and ignored (default:
+    /// 0ms on standard input, 100ms over Sparkplug B).
+    #[arg(long, value_parser = time::parse_duration)]
+    lateness: Option<Time>,
     /// How long a `def_` flag's verdict must hold, in the source's time beyond
     /// the watermark, before the flag is raised and written to the PLC
     /// (default: one scan period).
@@ -93,6 +104,10 @@ pub struct MonitorArgs {
     probe: bool,
 }
 
+/// The jitter allowed by default between a Sparkplug B node's messages: a
+/// tenth of a second, well above a broker's on one site.
+const SPARKPLUG_LATENESS: Time = 100 * diagnoser::MS;
+
 /// Runs `gardefou monitor`.
 pub fn run(args: MonitorArgs) -> Result<(), Failure> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
@@ -119,7 +134,7 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         polled: config.source.polled(),
         // Beside a live PLC, the flags go back to its filter, which may then
         // hold the control's reaction to an edge back.
-        held_reactions: config.source.polled(),
+        held_reactions: config.source.polled() || config.source.writes_flags(),
     };
     let diagnoser = PlantDiagnoser::new(&plant, &model, &options)
         .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
@@ -139,9 +154,15 @@ fn source(args: &MonitorArgs) -> SourceConfig {
         SourceConfig::Can {
             interface: interface.clone(),
         }
+    } else if let (Some(broker), Some(target)) = (&args.mqtt, &args.sparkplug) {
+        SourceConfig::Sparkplug {
+            broker: broker.clone(),
+            target: target.clone(),
+            lateness: args.lateness.unwrap_or(SPARKPLUG_LATENESS),
+        }
     } else {
         SourceConfig::Stdin {
-            lateness: args.lateness,
+            lateness: args.lateness.unwrap_or(0),
         }
     }
 }

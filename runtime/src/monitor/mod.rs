@@ -1,6 +1,6 @@
 //! Online diagnosis beside a PLC (`gardefou monitor`). Events come from a
-//! [`source::Source`] as they happen (Modbus TCP, SocketCAN, a replayed log,
-//! JSON lines on stdin); every part's diagnoser reads them. Verdict changes go
+//! [`source::Source`] as they happen (Modbus TCP, SocketCAN, MQTT Sparkplug B,
+//! a replayed log, JSON lines on stdin); every part's diagnoser reads them. Verdict changes go
 //! out as JSON lines (SPEC §3), the flags they raise go back to the PLC
 //! (Modbus), and [`Config::http`] serves `/status` and `/metrics`.
 //!
@@ -32,6 +32,7 @@ pub mod http;
 pub mod modbus;
 mod probing;
 pub mod source;
+pub mod sparkplug;
 pub mod status;
 pub mod stdin;
 
@@ -76,6 +77,16 @@ pub enum SourceConfig {
         /// The log.
         log: PathBuf,
     },
+    /// The metrics of a Sparkplug B edge node or device, read from an MQTT
+    /// broker; the flags go back as commands (see [`sparkplug`]).
+    Sparkplug {
+        /// The broker: `mqtt://HOST:PORT`.
+        broker: String,
+        /// `GROUP/EDGE[/DEVICE]`.
+        target: String,
+        /// The jitter allowed between the node's messages, in its time.
+        lateness: Time,
+    },
     /// Events as JSON lines on standard input (see [`stdin`]).
     Stdin {
         /// How late, in the source's time, a line may come after a later one;
@@ -91,6 +102,16 @@ impl SourceConfig {
     /// producer on stdin gives the scans as they were.
     pub fn polled(&self) -> bool {
         matches!(self, SourceConfig::Modbus { .. } | SourceConfig::Can { .. })
+    }
+
+    /// Whether the flags go back to the PLC, whose filter may then hold the
+    /// control's reaction to an edge back
+    /// ([`diagnoser::diagnosis::DiagnoserOptions::held_reactions`]).
+    pub fn writes_flags(&self) -> bool {
+        matches!(
+            self,
+            SourceConfig::Modbus { .. } | SourceConfig::Sparkplug { .. }
+        )
     }
 }
 
@@ -193,6 +214,15 @@ fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure>
         SourceConfig::Can { interface } => Box::new(move || {
             let s = can::CanSource::new(&interface, &plant, speed)?;
             Ok((Box::new(s) as Box<dyn Source>, format!("can {interface}")))
+        }),
+        SourceConfig::Sparkplug {
+            broker,
+            target,
+            lateness,
+        } => Box::new(move || {
+            let s = sparkplug::SparkplugSource::new(&broker, &target, &plant, speed, lateness)?;
+            let name = format!("sparkplug {broker} {target}");
+            Ok((Box::new(s) as Box<dyn Source>, name))
         }),
         SourceConfig::Stdin { lateness } => {
             let s = stdin::Stdin {
