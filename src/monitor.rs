@@ -94,6 +94,25 @@ pub struct MonitorArgs {
     /// value again.
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
+    /// Publish the plant's events, verdict lines and flags to NATS
+    /// JetStream (`nats://HOST:PORT`): streams GARDEFOU_EVENTS,
+    /// GARDEFOU_VERDICTS and GARDEFOU_FLAGS, subjects
+    /// `gardefou.{events,verdicts,flags}.PLANT`. The monitor never waits for
+    /// the broker: what it cannot publish waits in an outbox, sent in order
+    /// when the broker is back.
+    #[arg(long, value_name = "URL")]
+    nats: Option<String>,
+    /// The plant's name in the subjects (default: the plant file's name).
+    #[arg(long, value_name = "NAME", requires = "nats")]
+    nats_plant: Option<String>,
+    /// The file the outbox spills to while the broker is away (default: in
+    /// the temporary directory, named by plant and process).
+    #[arg(long, value_name = "FILE", requires = "nats")]
+    nats_outbox: Option<PathBuf>,
+    /// Megabytes the outbox may hold; beyond, messages are dropped, with a
+    /// warning.
+    #[arg(long, value_name = "MB", default_value_t = 256, requires = "nats")]
+    nats_outbox_mb: u64,
     /// Make probing moves (with --modbus only): where a part's verdict stays
     /// ambiguous while its orders wait, ask the PLC's filter, through the
     /// probe coils, for a move of one of the part's outputs that a copy of the
@@ -167,6 +186,26 @@ fn source(args: &MonitorArgs) -> SourceConfig {
     }
 }
 
+/// Where `--nats` publishes.
+fn nats_settings(args: &MonitorArgs, url: &str, plant: &Plant) -> runtime::jetstream::Settings {
+    let name = args
+        .nats_plant
+        .clone()
+        .unwrap_or_else(|| plant.name.clone());
+    let outbox = args.nats_outbox.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!(
+            "gardefou-outbox-{name}-{}.spool",
+            std::process::id()
+        ))
+    });
+    runtime::jetstream::Settings {
+        url: url.to_string(),
+        plant: name,
+        outbox,
+        outbox_bytes: args.nats_outbox_mb.saturating_mul(1 << 20),
+    }
+}
+
 /// The monitor's settings from the arguments.
 fn config(args: &MonitorArgs, plant: &Plant) -> Config {
     let wall = |t: Time| Duration::from_nanos(t.max(0) as u64);
@@ -184,5 +223,9 @@ fn config(args: &MonitorArgs, plant: &Plant) -> Config {
         speed: args.speed,
         duration: args.duration.map(wall),
         probe: None,
+        nats: args
+            .nats
+            .as_ref()
+            .map(|url| nats_settings(args, url, plant)),
     }
 }

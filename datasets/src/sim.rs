@@ -101,7 +101,7 @@ pub fn run<P: Physics, C: Controller, S: ScanSink>(
     let mut stepper = Stepper::new(physics.plant(), config);
     while let Some((t, values)) = stepper.step(physics, controller)? {
         sink.scan(t, values)?;
-        if stepper.scans() % 65_536 == 0 {
+        if stepper.scans().is_multiple_of(65_536) {
             progress(t);
         }
     }
@@ -147,7 +147,7 @@ where
                 *twin = None;
             }
         }
-        if stepper.scans() % 65_536 == 0 {
+        if stepper.scans().is_multiple_of(65_536) {
             progress(t);
         }
     }

@@ -56,7 +56,7 @@ fn main() -> ExitCode {
     if explain {
         args.remove(0);
     }
-    if args.is_empty() || args.len() % 2 != 0 {
+    if args.is_empty() || !args.len().is_multiple_of(2) {
         eprintln!(
             "usage: faudes_check [--explain] GENERATOR FAILURE_TYPES [GENERATOR FAILURE_TYPES ...]"
         );

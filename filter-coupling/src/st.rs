@@ -502,12 +502,12 @@ impl<'a> Gen<'a> {
     /// Reserves an identifier; two names that are the same identifier are an error.
     fn take(&mut self, ident: &str, owner: &str) -> Result<(), String> {
         let key = ident.to_ascii_uppercase();
-        if let Some(other) = self.taken.get(&key) {
-            if other != owner {
-                return Err(format!(
-                    "'{other}' and '{owner}' are the same Structured Text identifier '{ident}' (identifiers ignore case): rename one"
-                ));
-            }
+        if let Some(other) = self.taken.get(&key)
+            && other != owner
+        {
+            return Err(format!(
+                "'{other}' and '{owner}' are the same Structured Text identifier '{ident}' (identifiers ignore case): rename one"
+            ));
         }
         self.taken.insert(key, owner.to_string());
         Ok(())

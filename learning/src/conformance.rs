@@ -225,22 +225,21 @@ fn step(
                 ),
             }),
             Some(tr) if tr.timed => {
-                if let Some(o) = pc.clock_origin(&tr.clock) {
-                    if !tr.guard.window(unit).admits(t - o) {
-                        let clock = (t - o) as f64 / unit.nanos() as f64;
-                        out.push(Deviation {
-                            t,
-                            part: pc.model.name.clone(),
-                            message: format!(
-                                "{} at {clock} after {}, outside its guard [{}, {}]",
-                                tr.event,
-                                ModelClock::parse(&tr.clock)
-                                    .map_or(tr.clock.clone(), |c| c.since()),
-                                tr.guard.lo,
-                                tr.guard.hi
-                            ),
-                        });
-                    }
+                if let Some(o) = pc.clock_origin(&tr.clock)
+                    && !tr.guard.window(unit).admits(t - o)
+                {
+                    let clock = (t - o) as f64 / unit.nanos() as f64;
+                    out.push(Deviation {
+                        t,
+                        part: pc.model.name.clone(),
+                        message: format!(
+                            "{} at {clock} after {}, outside its guard [{}, {}]",
+                            tr.event,
+                            ModelClock::parse(&tr.clock).map_or(tr.clock.clone(), |c| c.since()),
+                            tr.guard.lo,
+                            tr.guard.hi
+                        ),
+                    });
                 }
             }
             Some(_) => {}

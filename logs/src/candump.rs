@@ -452,17 +452,17 @@ impl<R: BufRead> Reader<R> {
     }
 
     fn check_time(&mut self, frame: Frame) -> Result<Frame, Located> {
-        if let Some((previous, line)) = self.previous {
-            if frame.t < previous {
-                return Err(self.error(
-                    frame.t_column,
-                    crate::rows::backwards(
-                        &TimeUnit::S.format(frame.t),
-                        &TimeUnit::S.format(previous),
-                        line,
-                    ),
-                ));
-            }
+        if let Some((previous, line)) = self.previous
+            && frame.t < previous
+        {
+            return Err(self.error(
+                frame.t_column,
+                crate::rows::backwards(
+                    &TimeUnit::S.format(frame.t),
+                    &TimeUnit::S.format(previous),
+                    line,
+                ),
+            ));
         }
         self.previous = Some((frame.t, self.line));
         Ok(frame)
@@ -577,13 +577,13 @@ fn parse_line(line: &str) -> Result<Option<Frame>, (usize, String)> {
             "missing frame after the interface, such as 181#0102".into(),
         ));
     };
-    if let Some((column, extra)) = fields.next() {
-        if !matches!(extra, "R" | "T") || fields.next().is_some() {
-            return Err((
-                column,
-                format!("unexpected {} after the frame", quoted(extra)),
-            ));
-        }
+    if let Some((column, extra)) = fields.next()
+        && (!matches!(extra, "R" | "T") || fields.next().is_some())
+    {
+        return Err((
+            column,
+            format!("unexpected {} after the frame", quoted(extra)),
+        ));
     }
     let data = parse_frame(frame, frame_column)?;
     Ok(Some(Frame { t, t_column, data }))

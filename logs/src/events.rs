@@ -252,15 +252,15 @@ impl<'a, S: Records> EventReader<'a, S> {
         let t_col = self.columns[0];
         rows.check_width(self.width)?;
         let t = self.time.parse(rows, t_col, "t")?;
-        if let Some((previous, line)) = self.previous {
-            if t < previous {
-                let message = rows::backwards(
-                    rows.field(t_col),
-                    &self.time.format().format(previous),
-                    line,
-                );
-                return Err(rows.field_error(t_col, "t", message));
-            }
+        if let Some((previous, line)) = self.previous
+            && t < previous
+        {
+            let message = rows::backwards(
+                rows.field(t_col),
+                &self.time.format().format(previous),
+                line,
+            );
+            return Err(rows.field_error(t_col, "t", message));
         }
         Ok(t)
     }

@@ -824,10 +824,10 @@ impl Collapse {
             self.flush(out);
             self.at = Some(t);
         }
-        if let Some(slot) = self.slot.get_mut(signal.index()) {
-            if slot.replace(value).is_none() {
-                self.touched.push(signal);
-            }
+        if let Some(slot) = self.slot.get_mut(signal.index())
+            && slot.replace(value).is_none()
+        {
+            self.touched.push(signal);
         }
         true
     }
@@ -843,11 +843,10 @@ impl Collapse {
             if let (Some(value), Some(current)) = (
                 self.slot.get_mut(i).and_then(Option::take),
                 self.current.get_mut(i),
-            ) {
-                if value != *current {
-                    *current = value;
-                    out.push(Event { t, signal, value });
-                }
+            ) && value != *current
+            {
+                *current = value;
+                out.push(Event { t, signal, value });
             }
         }
     }

@@ -257,22 +257,22 @@ impl<'a, S: Records> ScanReader<'a, S> {
         let t_col = self.t_column;
         rows.check_width(self.columns.len())?;
         let t = self.time.parse(rows, t_col, "t")?;
-        if let Some((previous, line)) = self.previous {
-            if t <= previous {
-                let message = if t == previous {
-                    format!(
-                        "time does not increase: {} repeats the time of line {line}",
-                        rows.field(t_col)
-                    )
-                } else {
-                    rows::backwards(
-                        rows.field(t_col),
-                        &self.time.format().format(previous),
-                        line,
-                    )
-                };
-                return Err(rows.field_error(t_col, "t", message));
-            }
+        if let Some((previous, line)) = self.previous
+            && t <= previous
+        {
+            let message = if t == previous {
+                format!(
+                    "time does not increase: {} repeats the time of line {line}",
+                    rows.field(t_col)
+                )
+            } else {
+                rows::backwards(
+                    rows.field(t_col),
+                    &self.time.format().format(previous),
+                    line,
+                )
+            };
+            return Err(rows.field_error(t_col, "t", message));
         }
         for (i, column) in self.columns.iter().enumerate() {
             if let Some(id) = *column {

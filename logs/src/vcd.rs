@@ -638,12 +638,12 @@ impl<R: BufRead> Reader<R> {
                     quoted(self.tokens.text())
                 ))
             })?;
-        if let Some((previous, line)) = self.previous {
-            if ticks < previous {
-                return Err(self.tokens.error(format!(
-                    "time goes backwards: #{ticks} is before #{previous} on line {line}"
-                )));
-            }
+        if let Some((previous, line)) = self.previous
+            && ticks < previous
+        {
+            return Err(self.tokens.error(format!(
+                "time goes backwards: #{ticks} is before #{previous} on line {line}"
+            )));
         }
         let ns = i128::from(ticks) * self.scale.num / self.scale.den;
         let t = Time::try_from(ns).map_err(|_| {

@@ -1029,10 +1029,10 @@ fn rank_nodes(n: usize, dag: &[(usize, usize)]) -> Vec<usize> {
         }
     }
     for &v in topo.iter().rev() {
-        if out[v].len() > indegree[v] {
-            if let Some(closest) = out[v].iter().map(|&w| rank[w]).min() {
-                rank[v] = rank[v].max(closest - 1);
-            }
+        if out[v].len() > indegree[v]
+            && let Some(closest) = out[v].iter().map(|&w| rank[w]).min()
+        {
+            rank[v] = rank[v].max(closest - 1);
         }
     }
     let low = rank.iter().copied().min().unwrap_or(0);

@@ -2,9 +2,12 @@
 //! real time or in event time.
 //!
 //! - [`monitor`]: online diagnosis (`gardefou monitor`): events from a live
-//!   source (Modbus TCP, SocketCAN, JSON lines on stdin) or a replay paced on
+//!   source (Modbus TCP, SocketCAN, MQTT Sparkplug B, JSON lines on stdin) or a replay paced on
 //!   the wall clock, deadlines fired in event time, verdict lines out, flags
 //!   back to the PLC, `/status` and `/metrics` over HTTP.
+//! - [`jetstream`]: a monitor's plant on NATS JetStream (`monitor --nats`):
+//!   its events, verdicts and flags published in order, kept through a
+//!   broker's absence.
 //! - [`virtual_plc`]: the simulated sorting line scanning in real time under
 //!   safe control through the safety filter, behind a Modbus TCP server
 //!   (`gardefou simulate --serve-modbus`).
@@ -26,6 +29,7 @@
 
 pub mod closed_loop;
 pub mod flags;
+pub mod jetstream;
 pub mod monitor;
 pub mod probe;
 pub mod virtual_plc;

@@ -174,7 +174,7 @@ impl Controller for Twin {
         }
         self.control.scan(t, io);
         // Now and then a wrong order, so that the check and the fallback work.
-        if self.random() % 300 == 0 {
+        if self.random().is_multiple_of(300) {
             let k = (self.random() % self.actuators.len() as u64) as usize;
             let a = self.actuators[k].0;
             io[a] = !io[a];

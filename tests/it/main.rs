@@ -25,6 +25,7 @@ mod filter_st;
 mod learn_cli;
 mod monitor_can;
 mod monitor_cli;
+mod monitor_nats;
 mod monitor_sparkplug;
 mod netfault;
 mod probing;

@@ -455,10 +455,12 @@ impl GeneratedPhysics {
                 continue;
             };
             let r = self.axes[axis].r;
-            if r > r_before && r_before <= CONTACT && r > CONTACT {
-                if let Some(w) = self.at_place(from) {
-                    self.workpieces[w].loc = Loc::Pushed { axis, q: r };
-                }
+            if r > r_before
+                && r_before <= CONTACT
+                && r > CONTACT
+                && let Some(w) = self.at_place(from)
+            {
+                self.workpieces[w].loc = Loc::Pushed { axis, q: r };
             }
             for w in 0..self.workpieces.len() {
                 if let Loc::Pushed { axis: a, q } = self.workpieces[w].loc {
@@ -714,10 +716,10 @@ impl Physics for GeneratedPhysics {
             g.holding = None;
         }
         for (i, w) in self.workpieces.iter().enumerate() {
-            if let Loc::Held(axis) = w.loc {
-                if let Some(g) = self.geometry.arm_of.iter().position(|&a| a == axis) {
-                    self.grippers[g].holding = Some(i);
-                }
+            if let Loc::Held(axis) = w.loc
+                && let Some(g) = self.geometry.arm_of.iter().position(|&a| a == axis)
+            {
+                self.grippers[g].holding = Some(i);
             }
         }
     }

@@ -248,10 +248,10 @@ impl TimerMemo {
 #[inline(always)]
 fn find_time(table: &[TimeMove], region: u64) -> Result<usize, usize> {
     // A state has a handful of transitions: a plain scan beats a binary search.
-    if table.len() <= 8 {
-        if let Some(i) = table.iter().position(|m| m.region == region) {
-            return Ok(i);
-        }
+    if table.len() <= 8
+        && let Some(i) = table.iter().position(|m| m.region == region)
+    {
+        return Ok(i);
     }
     table.binary_search_by(|m| m.region.cmp(&region))
 }
@@ -259,10 +259,10 @@ fn find_time(table: &[TimeMove], region: u64) -> Result<usize, usize> {
 /// Where the move on `key` is in a table of scan moves sorted by key.
 #[inline]
 fn find_scan(table: &[ScanMove], key: (u32, u64)) -> Result<usize, usize> {
-    if table.len() <= 8 {
-        if let Some(i) = table.iter().position(|m| (m.changed, m.region) == key) {
-            return Ok(i);
-        }
+    if table.len() <= 8
+        && let Some(i) = table.iter().position(|m| (m.changed, m.region) == key)
+    {
+        return Ok(i);
     }
     table.binary_search_by(|m| (m.changed, m.region).cmp(&key))
 }

@@ -448,7 +448,7 @@ impl Pdos {
     /// Adds the frames of one datagram (or one socket read) to `batch`, or
     /// warns that they are not whole 16-byte frames.
     fn append(&self, bytes: &[u8], batch: &mut Vec<u8>, out: &mut Vec<Item>) {
-        if bytes.is_empty() || bytes.len() % CAN_FRAME_SIZE != 0 {
+        if bytes.is_empty() || !bytes.len().is_multiple_of(CAN_FRAME_SIZE) {
             out.push(Item::Warning(format!(
                 "can {}: {} bytes received, not a whole number of {CAN_FRAME_SIZE}-byte CAN frames: ignored",
                 self.name,

@@ -55,6 +55,8 @@ use probing::Probing;
 use source::{FlagImage, Item, Link, ProbeImage, Source};
 use status::Status;
 
+use crate::jetstream::Publisher;
+
 /// Where the monitor's events come from.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SourceConfig {
@@ -144,7 +146,14 @@ pub struct Config {
     /// built with the coupling the PLC uses, that every move is checked on.
     /// `None`: the monitor never writes a probe coil.
     pub probe: Option<Filter>,
+    /// Where to publish the plant's events, verdicts and flags (`--nats`),
+    /// if anywhere.
+    pub nats: Option<crate::jetstream::Settings>,
 }
+
+/// How long a stopping monitor waits for the broker to take what it has not
+/// yet published.
+const PUBLISH_WAIT: Duration = Duration::from_secs(10);
 
 /// How long a stopping monitor waits for the PLC to acknowledge the end of
 /// its probing move.
@@ -272,6 +281,10 @@ struct Outputs {
     /// When the evidence of the verdicts being computed came: a scan's or a
     /// watermark's arrival, a replayed deadline's expiry (for the latency).
     evidence: Cell<Instant>,
+    /// The plant's streams, with `--nats`.
+    publisher: Option<Publisher>,
+    /// The flags up last published, and the watermark then.
+    published_flags: Option<Vec<String>>,
 }
 
 impl Outputs {
@@ -292,6 +305,8 @@ impl Outputs {
             plant,
             probing: None,
             evidence: Cell::new(Instant::now()),
+            publisher: None,
+            published_flags: None,
         }
     }
 
@@ -301,6 +316,9 @@ impl Outputs {
             v.reason = reason;
         }
         self.writer.line(&v);
+        if let Some(p) = self.publisher.as_mut() {
+            p.verdict(&v.json_line(self.writer.time, None));
+        }
         let changed = self.board.update(&v);
         let Ok(mut s) = self.status.lock() else {
             return;
@@ -340,6 +358,20 @@ impl Outputs {
         let image = self.board.image(&self.plant);
         if let Some(p) = self.probing.as_mut() {
             p.flags(&image);
+        }
+        if let Some(p) = self.publisher.as_mut() {
+            let up: Vec<String> = self
+                .plant
+                .flags()
+                .iter()
+                .zip(&image)
+                .filter(|(_, up)| **up)
+                .map(|(f, _)| f.to_string())
+                .collect();
+            if self.published_flags.as_ref() != Some(&up) {
+                p.flags(&up);
+                self.published_flags = Some(up);
+            }
         }
         let _ = self.flag_tx.send(image);
     }
@@ -671,15 +703,30 @@ async fn monitor(
         error: None,
     };
     let confirmation = config.confirm.unwrap_or(plant.scan_period);
+    let publisher = match &config.nats {
+        Some(settings) => Some(Publisher::start(settings.clone(), &plant)?),
+        None => None,
+    };
     let mut out = Outputs::new(writer, confirmation, status, flag_tx, plant);
     out.probing = probing;
+    out.publisher = publisher;
     let mut run = Run::new(diagnoser, out, config.speed);
-    let end = event_loop(&mut run, &mut rx, config, knows_ahead).await?;
+    let end = event_loop(&mut run, &mut rx, config, knows_ahead).await;
     end_probe(&mut run, &mut rx).await;
-    match end {
-        End::Stopped(stopped) => finish(&mut run, stopped, knows_ahead),
-        End::Closed => Ok(()),
+    let result = match end {
+        Ok(End::Stopped(stopped)) => finish(&mut run, stopped, knows_ahead),
+        Ok(End::Closed) => Ok(()),
+        Err(e) => Err(e),
+    };
+    if let Some(p) = run.out.publisher.take() {
+        let t = run.watermark.unwrap_or_else(|| run.diagnoser.now());
+        let summary = p.finish(t, PUBLISH_WAIT).await;
+        eprintln!(
+            "monitor: nats: {} messages published ({} already there), {} dropped, {} not published",
+            summary.published, summary.duplicates, summary.dropped, summary.left
+        );
     }
+    result
 }
 
 /// With `--probe`, as the monitor stops: ends the probe under way and waits
@@ -753,6 +800,9 @@ async fn event_loop(
                 let Some(item) = item else {
                     return Ok(End::Stopped(None));
                 };
+                if let Some(p) = run.out.publisher.as_mut() {
+                    p.item(&item);
+                }
                 pending = run.receive(item, knows_ahead)?;
             }
         }
@@ -1102,6 +1152,7 @@ mod tests {
             speed: 1e4,
             duration: None,
             probe: None,
+            nats: None,
         };
         let output = lines.clone();
         let (plant, diagnoser) = (f2.plant.clone(), f2.diagnoser.clone());

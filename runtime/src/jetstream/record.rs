@@ -1,0 +1,216 @@
+//! The subjects and payloads of a plant's streams on NATS JetStream.
+//!
+//! | stream | subject | one message per | payload |
+//! |---|---|---|---|
+//! | `GARDEFOU_EVENTS` | `gardefou.events.PLANT` | what the source showed: the first values, a scan, a watermark, a lost plant, the end | JSON, below |
+//! | `GARDEFOU_VERDICTS` | `gardefou.verdicts.PLANT` | verdict line | the JSON line of SPEC §3, as `monitor` prints it |
+//! | `GARDEFOU_FLAGS` | `gardefou.flags.PLANT` | change of the flags written to the PLC | `{"t_ns":…,"up":["def_C4"]}` |
+//!
+//! Events, times in integer nanoseconds (`t_ns`), signals by name:
+//!
+//! ```text
+//! {"t_ns":590000000000,"start":{"A0":0,"A1":1,…}}   every signal's value
+//! {"t_ns":602850000000,"scan":[["A4",1],["C5",0]]}  the changes of one scan, in order
+//! {"t_ns":602950000000,"watermark":true}            nothing else up to then
+//! {"t_ns":602990000000,"lost":"modbus …: no reply"} the plant unseen from then on
+//! {"t_ns":612000000000,"end":true}                  the monitor stopped
+//! ```
+//!
+//! A scan is one message, whatever groups of signals it touches, so that the
+//! stream keeps the order of the scans and of the events within one.
+//! Watermarks go out at most every [`WATERMARK_SCANS`] scan periods: a
+//! replay of the stream fires the same deadlines, a little later.
+
+use diagnoser::{Plant, Time};
+use serde_json::json;
+
+use crate::monitor::source::Item;
+
+/// The streams, and the subjects each takes.
+pub const STREAMS: [(&str, &str); 3] = [
+    ("GARDEFOU_EVENTS", "gardefou.events.>"),
+    ("GARDEFOU_VERDICTS", "gardefou.verdicts.>"),
+    ("GARDEFOU_FLAGS", "gardefou.flags.>"),
+];
+
+/// Scan periods of the source's time between two watermarks published.
+pub const WATERMARK_SCANS: Time = 10;
+
+/// The subjects of one plant.
+#[derive(Debug, Clone)]
+pub struct Subjects {
+    /// `gardefou.events.PLANT`.
+    pub events: String,
+    /// `gardefou.verdicts.PLANT`.
+    pub verdicts: String,
+    /// `gardefou.flags.PLANT`.
+    pub flags: String,
+}
+
+impl Subjects {
+    /// The subjects of the plant named `name`: one subject token (letters,
+    /// digits, `-` and `_`).
+    pub fn of(name: &str) -> Result<Subjects, String> {
+        let fits = |c: char| c.is_ascii_alphanumeric() || c == '-' || c == '_';
+        if name.is_empty() || !name.chars().all(fits) {
+            return Err(format!(
+                "'{name}': a plant's name on NATS is letters, digits, '-' and '_' only"
+            ));
+        }
+        Ok(Subjects {
+            events: format!("gardefou.events.{name}"),
+            verdicts: format!("gardefou.verdicts.{name}"),
+            flags: format!("gardefou.flags.{name}"),
+        })
+    }
+}
+
+/// Writes items as events payloads.
+#[derive(Debug)]
+pub struct EventWriter {
+    names: Vec<String>,
+    watermark_every: Time,
+    /// The time of the last message written.
+    last: Option<Time>,
+}
+
+impl EventWriter {
+    /// A writer for `plant`'s signals.
+    pub fn new(plant: &Plant) -> EventWriter {
+        EventWriter {
+            names: plant.signals.iter().map(|(_, s)| s.name.clone()).collect(),
+            watermark_every: plant.scan_period.max(1).saturating_mul(WATERMARK_SCANS),
+            last: None,
+        }
+    }
+
+    /// The payload of `item`, if it is one the stream keeps.
+    pub fn item(&mut self, item: &Item) -> Option<Vec<u8>> {
+        let (t, body) = match item {
+            Item::Start(t, values) => {
+                let values: serde_json::Map<String, serde_json::Value> = self
+                    .names
+                    .iter()
+                    .zip(values)
+                    .map(|(n, v)| (n.clone(), json!(u8::from(*v))))
+                    .collect();
+                (*t, json!({ "start": values }))
+            }
+            Item::Scan(events) => {
+                let t = events.first()?.t;
+                let changes: Vec<serde_json::Value> = events
+                    .iter()
+                    .map(|e| json!([self.names[e.signal.index()], u8::from(e.value)]))
+                    .collect();
+                (t, json!({ "scan": changes }))
+            }
+            Item::Watermark(t) => {
+                if self
+                    .last
+                    .is_some_and(|l| *t < l.saturating_add(self.watermark_every))
+                {
+                    return None;
+                }
+                (*t, json!({ "watermark": true }))
+            }
+            Item::Lost(t, why) => (*t, json!({ "lost": why })),
+            _ => return None,
+        };
+        self.last = Some(t);
+        Some(with_time(t, body))
+    }
+
+    /// The time of the last payload written.
+    pub fn last(&self) -> Option<Time> {
+        self.last
+    }
+
+    /// The payload of the monitor's end at `t`.
+    pub fn end(&mut self, t: Time) -> Vec<u8> {
+        with_time(t, json!({ "end": true }))
+    }
+}
+
+/// The payload of the flags up at `t` (the last event's time), in plant order.
+pub fn flags(t: Option<Time>, up: &[String]) -> Vec<u8> {
+    let mut body = json!({ "up": up });
+    if let Some(t) = t {
+        body["t_ns"] = json!(t);
+    }
+    body.to_string().into_bytes()
+}
+
+/// `{"t_ns":T,…}`: the time first.
+fn with_time(t: Time, body: serde_json::Value) -> Vec<u8> {
+    let rest = body.to_string();
+    format!("{{\"t_ns\":{t},{}", rest.strip_prefix('{').unwrap_or(&rest)).into_bytes()
+}
+
+#[cfg(test)]
+mod tests {
+    use diagnoser::Event;
+
+    use super::*;
+
+    fn plant() -> Plant {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../datasets/data/sorting/F2/plant.toml");
+        Plant::from_path(&p).expect("plant")
+    }
+
+    #[test]
+    fn items_are_written_as_documented() {
+        let plant = plant();
+        let mut w = EventWriter::new(&plant);
+        let c4 = plant.signals.id("C4").expect("C4");
+        let a4 = plant.signals.id("A4").expect("A4");
+        let scan = Item::Scan(vec![
+            Event {
+                t: 5,
+                signal: c4,
+                value: true,
+            },
+            Event {
+                t: 5,
+                signal: a4,
+                value: false,
+            },
+        ]);
+        let text = String::from_utf8(w.item(&scan).expect("kept")).expect("UTF-8");
+        assert_eq!(text, r#"{"t_ns":5,"scan":[["C4",1],["A4",0]]}"#);
+        let lost = Item::Lost(7, "gone".into());
+        assert_eq!(w.item(&lost).expect("kept"), br#"{"t_ns":7,"lost":"gone"}"#);
+        assert!(w.item(&Item::Warning("w".into())).is_none());
+        let start = String::from_utf8(
+            w.item(&Item::Start(0, vec![false; plant.signals.len()]))
+                .expect("kept"),
+        )
+        .expect("UTF-8");
+        let v: serde_json::Value = serde_json::from_str(&start).expect("JSON");
+        assert_eq!(
+            v["start"].as_object().map(|o| o.len()),
+            Some(plant.signals.len())
+        );
+    }
+
+    #[test]
+    fn watermarks_are_thinned_to_every_few_scans() {
+        let plant = plant();
+        let mut w = EventWriter::new(&plant);
+        let every = plant.scan_period * WATERMARK_SCANS;
+        assert!(w.item(&Item::Watermark(0)).is_some());
+        assert!(w.item(&Item::Watermark(every - 1)).is_none());
+        assert!(w.item(&Item::Watermark(every)).is_some());
+    }
+
+    #[test]
+    fn plant_names_are_one_token() {
+        assert_eq!(
+            Subjects::of("line-7_a").expect("fits").events,
+            "gardefou.events.line-7_a"
+        );
+        for bad in ["", "a.b", "a b", "a*", "a>"] {
+            assert!(Subjects::of(bad).is_err(), "{bad}");
+        }
+    }
+}
