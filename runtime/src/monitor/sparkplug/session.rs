@@ -16,7 +16,10 @@
 //! extrapolated from its last message on the source's clock (`speed` times
 //! the wall clock), less `lateness`, the jitter allowed between its messages
 //! on the way. A value behind that watermark is late: a warning, ignored.
-//! Values that repeat the one known are not changes and are dropped.
+//! Values that repeat the one known are not changes and are dropped. A
+//! message stamped far ahead of that clock (a thousand scans, or ten seconds
+//! of it, as on standard input) would fire every deadline in between: it is
+//! a warning and a lost plant, read again from a new birth.
 //!
 //! **Losses.** Every message of an edge node carries a sequence number that
 //! follows the one before, modulo 256 (NBIRTH starts it). A gap, a message
@@ -102,6 +105,8 @@ pub struct Session {
     flag_index: HashMap<String, usize>,
     speed: f64,
     lateness: Time,
+    /// How far ahead of the node's clock a message may be stamped.
+    lead: Time,
     node: Option<Node>,
     /// The level's aliases, once it is born in this node session.
     aliases: Option<HashMap<u64, Slot>>,
@@ -157,6 +162,7 @@ impl Session {
             flag_index,
             speed,
             lateness: lateness.max(0),
+            lead: crate::monitor::stdin::lead(plant, speed),
             node: None,
             aliases: None,
             seen: false,
@@ -460,6 +466,19 @@ impl Session {
 
     /// Changes reported by the level: values queued by time, flags shown.
     fn data(&mut self, p: &Payload, at: Instant, out: &mut Vec<Item>, send: &mut Vec<Command>) {
+        if self.aliases.is_none() {
+            return;
+        }
+        if let Some(ahead) = self.far_ahead(p, at) {
+            // A clock that jumped: believing it would fire every deadline
+            // in between. The plant is lost, and read again from a birth.
+            out.push(Item::FarAhead(format!(
+                "{}: a message stamped {} ms ahead of the node's clock",
+                self.where_(),
+                ahead / 1_000_000
+            )));
+            return self.broken("its clock jumped ahead", at, out, send);
+        }
         let Some(aliases) = self.aliases.as_ref() else {
             return;
         };
@@ -531,6 +550,21 @@ impl Session {
             signal: id,
             value,
         });
+    }
+
+    /// How far (ns) a payload, or one of its metrics, is ahead of the node's
+    /// clock as extrapolated, if by more than [`Session::lead`].
+    fn far_ahead(&self, p: &Payload, at: Instant) -> Option<Time> {
+        let (t, then) = self.newest?;
+        let ran = at.saturating_duration_since(then).as_nanos() as f64 * self.speed;
+        let clock = t.saturating_add(ran as Time);
+        let stamps = p
+            .timestamp
+            .into_iter()
+            .chain(p.metrics.iter().filter_map(|m| m.timestamp));
+        let latest = stamps.filter_map(ms_to_time).max()?;
+        let ahead = latest.saturating_sub(clock);
+        (ahead > self.lead).then_some(ahead)
     }
 
     /// The source's time now, extrapolated from the latest message, less the
@@ -902,6 +936,32 @@ mod tests {
         );
         s.tick(at + RESEND * 3, &mut out, &mut send);
         assert!(send.is_empty(), "{send:?}");
+    }
+
+    #[test]
+    fn a_clock_that_jumps_ahead_loses_the_plant() {
+        let plant = plant();
+        let mut s = session(&plant, 0);
+        let at = Instant::now();
+        born(&mut s, &plant, 1_000, at);
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        let hour = 3_600_000;
+        s.message(
+            DDATA,
+            &bytes(1_000 + hour, 2, vec![by_alias(3, true, 1_000 + hour)]),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(
+            matches!(out.as_slice(), [Item::FarAhead(_), Item::Lost(t, _)] if *t == 1_000 * MS_NS),
+            "{out:?}"
+        );
+        assert!(
+            !out.iter()
+                .any(|i| matches!(i, Item::Watermark(_) | Item::Scan(_)))
+        );
+        assert_eq!(send, vec![Command::Rebirth]);
     }
 
     const MS_NS: Time = 1_000_000;
