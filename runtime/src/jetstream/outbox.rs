@@ -173,15 +173,17 @@ impl Spool {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir)?;
         }
-        let file = OpenOptions::new()
-            .read(true)
+        let writer = OpenOptions::new()
             .write(true)
             .create(true)
             .truncate(true)
             .open(path)?;
+        // Opened twice, not cloned: a clone shares the file position, and
+        // writing at the end would move where the reading goes on.
+        let reader = File::open(path)?;
         Ok(Spool {
-            writer: BufWriter::new(file.try_clone()?),
-            reader: BufReader::new(file),
+            writer: BufWriter::new(writer),
+            reader: BufReader::new(reader),
             waiting: 0,
         })
     }
