@@ -13,6 +13,7 @@ mod check;
 mod demo;
 mod diagnose;
 mod filter;
+mod fleet;
 mod interrupt;
 mod learn;
 mod monitor;
@@ -38,6 +39,9 @@ enum Command {
     Filter(filter::FilterArgs),
     /// Diagnose online: events from a live source, deadlines fired on time.
     Monitor(monitor::MonitorArgs),
+    /// Diagnose a plant out of its NATS JetStream stream (as `monitor --nats`
+    /// published it), with no PLC attached.
+    Fleet(fleet::FleetArgs),
     /// Learn one timed model per plant part from logs of normal operation.
     Learn(learn::LearnArgs),
     /// Replay logs through every part's diagnoser: verdict changes as JSON lines.
@@ -61,6 +65,7 @@ fn run(command: Command) -> Result<(), Failure> {
         Command::Demo(args) => demo::run(args),
         Command::Filter(args) => filter::run(args),
         Command::Monitor(args) => monitor::run(args),
+        Command::Fleet(args) => fleet::run(args),
         Command::Report(args) => report::run(args),
     }
 }

@@ -18,12 +18,13 @@
 
 pub mod outbox;
 pub mod record;
+pub mod replay;
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use async_nats::jetstream::{self, message::PublishMessage, stream};
-use diagnoser::{Failure, Plant, Time};
+use diagnoser::{Failure, Plant, Time, TimeFormat};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
@@ -79,8 +80,13 @@ pub struct Summary {
 }
 
 impl Publisher {
-    /// Starts publishing `plant` as `settings` say, on the current runtime.
-    pub fn start(settings: Settings, plant: &Plant) -> Result<Publisher, Failure> {
+    /// Starts publishing `plant`, whose verdicts print times as `time`, as
+    /// `settings` say, on the current runtime.
+    pub fn start(
+        settings: Settings,
+        plant: &Plant,
+        time: TimeFormat,
+    ) -> Result<Publisher, Failure> {
         let subjects = Subjects::of(&settings.plant)
             .map_err(|e| Failure::bad(format!("--nats-plant: {e}")))?;
         let (tx, rx) = mpsc::unbounded_channel();
@@ -94,7 +100,7 @@ impl Publisher {
             tx,
             next: 0,
             subjects,
-            events: EventWriter::new(plant),
+            events: EventWriter::new(plant, time),
             task,
         })
     }
@@ -348,6 +354,8 @@ async fn make_streams(js: &jetstream::Context) -> Result<(), String> {
             storage: stream::StorageType::File,
             retention: stream::RetentionPolicy::Limits,
             duplicate_window: DUPLICATE_WINDOW,
+            // A fleet worker reads a plant's first message directly.
+            allow_direct: true,
             ..stream::Config::default()
         };
         js.get_or_create_stream(config)

@@ -9,7 +9,9 @@
 //! Events, times in integer nanoseconds (`t_ns`), signals by name:
 //!
 //! ```text
-//! {"t_ns":590000000000,"start":{"A0":0,"A1":1,…}}   every signal's value
+//! {"t_ns":590000000000,"start":{"A0":0,"A1":1,…},"time":"ms"}
+//!                                                   every signal's value, and how
+//!                                                   the monitor printed times
 //! {"t_ns":602850000000,"scan":[["A4",1],["C5",0]]}  the changes of one scan, in order
 //! {"t_ns":602950000000,"watermark":true}            nothing else up to then
 //! {"t_ns":602990000000,"lost":"modbus …: no reply"} the plant unseen from then on
@@ -21,7 +23,7 @@
 //! Watermarks go out at most every [`WATERMARK_SCANS`] scan periods: a
 //! replay of the stream fires the same deadlines, a little later.
 
-use diagnoser::{Plant, Time};
+use diagnoser::{Event, Plant, Time, TimeFormat, TimeUnit};
 use serde_json::json;
 
 use crate::monitor::source::Item;
@@ -69,16 +71,18 @@ impl Subjects {
 #[derive(Debug)]
 pub struct EventWriter {
     names: Vec<String>,
+    time: TimeFormat,
     watermark_every: Time,
     /// The time of the last message written.
     last: Option<Time>,
 }
 
 impl EventWriter {
-    /// A writer for `plant`'s signals.
-    pub fn new(plant: &Plant) -> EventWriter {
+    /// A writer for `plant`'s signals, whose verdicts print times as `time`.
+    pub fn new(plant: &Plant, time: TimeFormat) -> EventWriter {
         EventWriter {
             names: plant.signals.iter().map(|(_, s)| s.name.clone()).collect(),
+            time,
             watermark_every: plant.scan_period.max(1).saturating_mul(WATERMARK_SCANS),
             last: None,
         }
@@ -94,7 +98,7 @@ impl EventWriter {
                     .zip(values)
                     .map(|(n, v)| (n.clone(), json!(u8::from(*v))))
                     .collect();
-                (*t, json!({ "start": values }))
+                (*t, json!({ "start": values, "time": time_name(self.time) }))
             }
             Item::Scan(events) => {
                 let t = events.first()?.t;
@@ -140,6 +144,87 @@ pub fn flags(t: Option<Time>, up: &[String]) -> Vec<u8> {
     body.to_string().into_bytes()
 }
 
+/// What an events message says.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Record {
+    /// Every signal's value, and how the monitor printed times.
+    Start(Time, Vec<bool>, Option<TimeFormat>),
+    /// The changes of one scan.
+    Scan(Vec<Event>),
+    /// Nothing else up to then.
+    Watermark(Time),
+    /// The plant unseen from then on.
+    Lost(Time, String),
+    /// The monitor stopped.
+    End(Time),
+}
+
+/// Reads an events message for `plant`.
+pub fn read(payload: &[u8], plant: &Plant) -> Result<Record, String> {
+    let v: serde_json::Value =
+        serde_json::from_slice(payload).map_err(|e| format!("not JSON ({e})"))?;
+    let t = v["t_ns"].as_i64().ok_or("no integer 't_ns'")?;
+    if let Some(values) = v.get("start") {
+        let values = values.as_object().ok_or("'start' is not an object")?;
+        let mut initial = vec![false; plant.signals.len()];
+        for (id, s) in plant.signals.iter() {
+            let value = values.get(&s.name).and_then(serde_json::Value::as_u64);
+            initial[id.index()] = match value {
+                Some(0) => false,
+                Some(1) => true,
+                _ => return Err(format!("'start' has no value 0 or 1 for signal {}", s.name)),
+            };
+        }
+        let time = v["time"].as_str().and_then(time_of);
+        return Ok(Record::Start(t, initial, time));
+    }
+    if let Some(changes) = v.get("scan") {
+        let changes = changes.as_array().ok_or("'scan' is not an array")?;
+        let events = changes
+            .iter()
+            .map(|c| {
+                let name = c[0].as_str().ok_or("a change without a signal name")?;
+                let signal = plant
+                    .signals
+                    .id(name)
+                    .ok_or_else(|| format!("unknown signal '{name}'"))?;
+                let value = match c[1].as_u64() {
+                    Some(0) => false,
+                    Some(1) => true,
+                    _ => return Err(format!("signal {name}: a value not 0 or 1")),
+                };
+                Ok(Event { t, signal, value })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        return Ok(Record::Scan(events));
+    }
+    if v.get("watermark").is_some() {
+        return Ok(Record::Watermark(t));
+    }
+    if let Some(why) = v.get("lost") {
+        return Ok(Record::Lost(t, why.as_str().unwrap_or("lost").to_string()));
+    }
+    if v.get("end").is_some() {
+        return Ok(Record::End(t));
+    }
+    Err("neither start, scan, watermark, lost nor end".into())
+}
+
+/// A time format's name in a start message.
+fn time_name(time: TimeFormat) -> &'static str {
+    match time {
+        TimeFormat::Numeric(unit) => unit.name(),
+        TimeFormat::Rfc3339 => "rfc3339",
+    }
+}
+
+fn time_of(name: &str) -> Option<TimeFormat> {
+    match name {
+        "rfc3339" => Some(TimeFormat::Rfc3339),
+        _ => name.parse::<TimeUnit>().ok().map(TimeFormat::Numeric),
+    }
+}
+
 /// `{"t_ns":T,…}`: the time first.
 fn with_time(t: Time, body: serde_json::Value) -> Vec<u8> {
     let rest = body.to_string();
@@ -161,7 +246,7 @@ mod tests {
     #[test]
     fn items_are_written_as_documented() {
         let plant = plant();
-        let mut w = EventWriter::new(&plant);
+        let mut w = EventWriter::new(&plant, TimeFormat::Numeric(TimeUnit::Ms));
         let c4 = plant.signals.id("C4").expect("C4");
         let a4 = plant.signals.id("A4").expect("A4");
         let scan = Item::Scan(vec![
@@ -196,7 +281,7 @@ mod tests {
     #[test]
     fn watermarks_are_thinned_to_every_few_scans() {
         let plant = plant();
-        let mut w = EventWriter::new(&plant);
+        let mut w = EventWriter::new(&plant, TimeFormat::Numeric(TimeUnit::Ms));
         let every = plant.scan_period * WATERMARK_SCANS;
         assert!(w.item(&Item::Watermark(0)).is_some());
         assert!(w.item(&Item::Watermark(every - 1)).is_none());

@@ -89,6 +89,14 @@ pub enum SourceConfig {
         /// The jitter allowed between the node's messages, in its time.
         lateness: Time,
     },
+    /// A plant's events read back from its NATS JetStream stream, as a
+    /// monitor with `--nats` published them (`gardefou fleet`).
+    Stream {
+        /// The server: `nats://HOST:PORT`.
+        url: String,
+        /// The plant's name in the subjects.
+        plant: String,
+    },
     /// Events as JSON lines on standard input (see [`stdin`]).
     Stdin {
         /// How late, in the source's time, a line may come after a later one;
@@ -149,6 +157,8 @@ pub struct Config {
     /// Where to publish the plant's events, verdicts and flags (`--nats`),
     /// if anywhere.
     pub nats: Option<crate::jetstream::Settings>,
+    /// A `plant` field for every verdict line (`gardefou fleet`), if any.
+    pub plant_field: Option<String>,
 }
 
 /// How long a stopping monitor waits for the broker to take what it has not
@@ -233,6 +243,11 @@ fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure>
             let name = format!("sparkplug {broker} {target}");
             Ok((Box::new(s) as Box<dyn Source>, name))
         }),
+        SourceConfig::Stream { url, plant: name } => {
+            let s = crate::jetstream::replay::StreamSource::open(&url, &name, &plant)?;
+            let label = format!("nats {url} {name}");
+            Box::new(move || Ok((Box::new(s) as Box<dyn Source>, label)))
+        }
         SourceConfig::Stdin { lateness } => {
             let s = stdin::Stdin {
                 plant,
@@ -251,6 +266,8 @@ struct Writer {
     terminal: bool,
     time: TimeFormat,
     error: Option<std::io::Error>,
+    /// `"plant":"NAME",` after the time of every JSON line, if set.
+    plant: Option<String>,
 }
 
 impl Writer {
@@ -261,12 +278,22 @@ impl Writer {
         let text = if self.terminal {
             readable(v, self.time)
         } else {
-            v.json_line(self.time, None)
+            with_plant(v.json_line(self.time, None), self.plant.as_deref())
         };
         if let Err(e) = writeln!(self.out, "{text}").and_then(|()| self.out.flush()) {
             self.error = Some(e);
         }
     }
+}
+
+/// A verdict's JSON line with `"plant":NAME` after its time (the first
+/// field, which holds no comma).
+fn with_plant(line: String, plant: Option<&str>) -> String {
+    let (Some(plant), Some(i)) = (plant, line.find(',')) else {
+        return line;
+    };
+    let name = serde_json::Value::String(plant.to_string());
+    format!("{},\"plant\":{name}{}", &line[..i], &line[i..])
 }
 
 /// Where verdicts go: the output, the flags, the status and the PLC.
@@ -701,10 +728,11 @@ async fn monitor(
         terminal,
         time: time_format,
         error: None,
+        plant: config.plant_field.clone(),
     };
     let confirmation = config.confirm.unwrap_or(plant.scan_period);
     let publisher = match &config.nats {
-        Some(settings) => Some(Publisher::start(settings.clone(), &plant)?),
+        Some(settings) => Some(Publisher::start(settings.clone(), &plant, time_format)?),
         None => None,
     };
     let mut out = Outputs::new(writer, confirmation, status, flag_tx, plant);
@@ -1070,6 +1098,7 @@ mod tests {
             terminal: false,
             time: f2.time,
             error: None,
+            plant: None,
         };
         let out = Outputs::new(
             writer,
@@ -1153,6 +1182,7 @@ mod tests {
             duration: None,
             probe: None,
             nats: None,
+            plant_field: None,
         };
         let output = lines.clone();
         let (plant, diagnoser) = (f2.plant.clone(), f2.diagnoser.clone());
