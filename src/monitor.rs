@@ -153,7 +153,7 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         polled: config.source.polled(),
         // Beside a live PLC, the flags go back to its filter, which may then
         // hold the control's reaction to an edge back.
-        held_reactions: config.source.polled() || config.source.writes_flags(),
+        held_reactions: config.source.polled(),
     };
     let diagnoser = PlantDiagnoser::new(&plant, &model, &options)
         .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 #[path = "it/support/mod.rs"]
 mod support;
-use crate::support::repo as path;
+use crate::support::{free_port, repo as path};
 use support::netfault::{Faults, Proxy};
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
@@ -52,13 +52,6 @@ fn on_time(what: &str, mut run: impl FnMut() -> Result<(), f64>) {
         }
     }
     panic!("{what}: the PLC fell behind real time in {ATTEMPTS} runs");
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
 }
 
 /// A child process whose stdout lines arrive on a channel.

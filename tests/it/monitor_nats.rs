@@ -7,14 +7,13 @@
 //! `GARDEFOU_NATS_SERVER`, with `GARDEFOU_REQUIRE_PEERS=1`; without them, a
 //! machine with no `nats-server` skips these tests with a message.
 
-use std::net::{TcpListener, TcpStream};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use async_nats::jetstream;
 
-use crate::support::repo as path;
+use crate::support::{free_port, peer_missing, repo as path, wait_for_port};
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
 const PLANT: &str = "datasets/data/sorting/F2/plant.toml";
@@ -33,21 +32,12 @@ fn nats_server() -> Option<String> {
             .map(|_| "nats-server".to_string())
     });
     if found.is_none() {
-        let required = std::env::var("GARDEFOU_REQUIRE_PEERS").is_ok_and(|v| v == "1");
-        assert!(
-            !required,
-            "GARDEFOU_REQUIRE_PEERS=1 but no nats-server (GARDEFOU_NATS_SERVER)"
+        peer_missing(
+            "the NATS test",
+            "needs nats-server (GARDEFOU_NATS_SERVER; scripts/test installs it)",
         );
-        eprintln!("skipped: the NATS tests need nats-server (scripts/test installs it)");
     }
     found
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
 }
 
 /// A JetStream server on a loopback port, its store in `store`.
@@ -64,11 +54,7 @@ impl Server {
             .stderr(Stdio::null())
             .spawn()
             .expect("nats-server starts");
-        let end = Instant::now() + Duration::from_secs(10);
-        while TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(Instant::now() < end, "nats-server did not listen on {port}");
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_for_port(port, "nats-server");
         Server { child }
     }
 

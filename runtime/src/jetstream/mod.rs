@@ -138,7 +138,8 @@ impl Publisher {
     }
 
     /// The monitor stops at `t`; waits up to `within` for the outbox to go.
-    pub async fn finish(mut self, t: Time, within: Duration) -> Summary {
+    /// `None`: it had not gone by then, and what was left is lost.
+    pub async fn finish(mut self, t: Time, within: Duration) -> Option<Summary> {
         let payload = self.events.end(t);
         let subject = self.subjects.events.clone();
         self.send(&subject, payload);
@@ -146,10 +147,10 @@ impl Publisher {
         drop(tx);
         let abort = task.abort_handle();
         match tokio::time::timeout(within, task).await {
-            Ok(Ok(summary)) => summary,
+            Ok(Ok(summary)) => Some(summary),
             _ => {
                 abort.abort();
-                Summary::default()
+                None
             }
         }
     }
@@ -179,7 +180,7 @@ async fn publish(
     };
     let mut js = jetstream::new(client);
     js.set_timeout(ACK_WAIT);
-    let mut state = Link::new(&settings);
+    let mut state = Broker::new(&settings);
     let mut open = true;
     loop {
         open &= take(&mut rx, &mut outbox, &mut summary, &mut state);
@@ -233,16 +234,16 @@ async fn publish(
 }
 
 /// Whether the broker is there, and what has been said about it.
-struct Link {
+struct Broker {
     url: String,
     streams: bool,
     failing: bool,
     full: bool,
 }
 
-impl Link {
-    fn new(settings: &Settings) -> Link {
-        Link {
+impl Broker {
+    fn new(settings: &Settings) -> Broker {
+        Broker {
             url: settings.url.clone(),
             streams: false,
             failing: false,
@@ -269,7 +270,7 @@ impl Link {
 }
 
 /// Puts one message handed over in the outbox, or counts it dropped.
-fn take_one(m: Message, outbox: &mut Outbox, summary: &mut Summary, state: &mut Link) {
+fn take_one(m: Message, outbox: &mut Outbox, summary: &mut Summary, state: &mut Broker) {
     match outbox.push(m) {
         Ok(()) => {}
         Err(Refused::Full) => {
@@ -295,7 +296,7 @@ fn take(
     rx: &mut mpsc::UnboundedReceiver<Message>,
     outbox: &mut Outbox,
     summary: &mut Summary,
-    state: &mut Link,
+    state: &mut Broker,
 ) -> bool {
     loop {
         match rx.try_recv() {
@@ -311,7 +312,7 @@ async fn wait(
     rx: &mut mpsc::UnboundedReceiver<Message>,
     outbox: &mut Outbox,
     summary: &mut Summary,
-    state: &mut Link,
+    state: &mut Broker,
 ) -> bool {
     let until = tokio::time::Instant::now() + RETRY_EVERY;
     loop {

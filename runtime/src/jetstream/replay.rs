@@ -3,8 +3,7 @@
 //! `gardefou.events.PLANT` from the stream's first message.
 //!
 //! Each message becomes the item the publishing monitor took in: a start, a
-//! scan (complete at its time: a watermark there), a watermark, a lost
-//! plant. The monitor's end is a watermark at its time, after which the
+//! scan (complete at its time), a watermark, a lost plant. The monitor's end is a watermark at its time, after which the
 //! source ends. So the verdict lines are those the publishing monitor
 //! printed, in the same time format (the start message names it). A message
 //! that does not read as an event stops the source with an error naming its
@@ -142,12 +141,8 @@ async fn consume(source: &StreamSource, link: &Link) -> Result<(), Failure> {
 fn items(record: Record) -> (Vec<Item>, bool) {
     match record {
         Record::Start(t, values, _) => (vec![Item::Start(t, values)], false),
-        Record::Scan(events) => {
-            let t = events.first().map(|e| e.t);
-            let mut items = vec![Item::Scan(events)];
-            items.extend(t.map(Item::Watermark));
-            (items, false)
-        }
+        // A scan is complete at its time: no watermark needed.
+        Record::Scan(events) => (vec![Item::Scan(events)], false),
         Record::Watermark(t) => (vec![Item::Watermark(t)], false),
         Record::Lost(t, why) => (vec![Item::Lost(t, why)], false),
         Record::End(t) => (vec![Item::Watermark(t)], true),

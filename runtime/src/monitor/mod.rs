@@ -113,16 +113,6 @@ impl SourceConfig {
     pub fn polled(&self) -> bool {
         matches!(self, SourceConfig::Modbus { .. } | SourceConfig::Can { .. })
     }
-
-    /// Whether the flags go back to the PLC, whose filter may then hold the
-    /// control's reaction to an edge back
-    /// ([`diagnoser::diagnosis::DiagnoserOptions::held_reactions`]).
-    pub fn writes_flags(&self) -> bool {
-        matches!(
-            self,
-            SourceConfig::Modbus { .. } | SourceConfig::Sparkplug { .. }
-        )
-    }
 }
 
 /// Settings of one monitor run.
@@ -310,7 +300,7 @@ struct Outputs {
     evidence: Cell<Instant>,
     /// The plant's streams, with `--nats`.
     publisher: Option<Publisher>,
-    /// The flags up last published, and the watermark then.
+    /// The flags up last published.
     published_flags: Option<Vec<String>>,
 }
 
@@ -748,11 +738,16 @@ async fn monitor(
     };
     if let Some(p) = run.out.publisher.take() {
         let t = run.watermark.unwrap_or_else(|| run.diagnoser.now());
-        let summary = p.finish(t, PUBLISH_WAIT).await;
-        eprintln!(
-            "monitor: nats: {} messages published ({} already there), {} dropped, {} not published",
-            summary.published, summary.duplicates, summary.dropped, summary.left
-        );
+        match p.finish(t, PUBLISH_WAIT).await {
+            Some(summary) => eprintln!(
+                "monitor: nats: {} messages published ({} already there), {} dropped, {} not published",
+                summary.published, summary.duplicates, summary.dropped, summary.left
+            ),
+            None => eprintln!(
+                "warning: nats: the broker did not take every message within {} s; the rest is not published",
+                PUBLISH_WAIT.as_secs()
+            ),
+        }
     }
     result
 }

@@ -62,6 +62,35 @@ pub fn learned_model() -> &'static str {
         .1
 }
 
+/// A free TCP port on loopback, for a server a test starts.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
+}
+
+/// Waits (at most 10 s) until `what` listens on loopback `port`.
+pub fn wait_for_port(port: u16, what: &str) {
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            std::time::Instant::now() < end,
+            "{what} did not listen on {port}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// A peer the test needs is missing: a failure when `scripts/test` asked
+/// for every peer (`GARDEFOU_REQUIRE_PEERS=1`, as in CI), else a message
+/// and the test is skipped.
+pub fn peer_missing(test: &str, why: &str) {
+    let required = std::env::var("GARDEFOU_REQUIRE_PEERS").is_ok_and(|v| v == "1");
+    assert!(!required, "GARDEFOU_REQUIRE_PEERS=1 but {test} {why}");
+    eprintln!("skipped: {test} {why}");
+}
+
 /// A tiny deterministic generator (SplitMix64): a fault plan or a pace drawn
 /// from a seed is the same on every run, so a failing run can be replayed,
 /// and no crate is needed for it.

@@ -20,6 +20,7 @@ pub mod session;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use diagnoser::{Failure, Plant, Time, TimeFormat};
+use prost::Message;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::time::{Instant, MissedTickBehavior};
 
@@ -227,7 +228,7 @@ fn publish(client: &AsyncClient, target: &Target, command: Command, out: &mut Ve
         topic.clone(),
         QoS::AtLeastOnce,
         false,
-        session::encode(&payload),
+        payload.encode_to_vec(),
     ) {
         out.push(Item::Warning(format!(
             "sparkplug {target}: {topic} not sent ({e})"

@@ -39,7 +39,7 @@ use std::time::{Duration, Instant};
 
 use diagnoser::flag::FlagKind;
 use diagnoser::{Event, Failure, Plant, SignalId, Time, TimeFormat, TimeUnit};
-use prost::Message;
+use prost::Message as _;
 
 use super::payload::{BD_SEQ, Kind, Metric, Payload, Topic};
 use crate::monitor::source::{FlagImage, Item};
@@ -176,11 +176,6 @@ impl Session {
         }
     }
 
-    /// The target followed.
-    pub fn target(&self) -> &Target {
-        &self.target
-    }
-
     /// How the session's times are printed: Sparkplug's milliseconds.
     pub fn time_format() -> TimeFormat {
         TimeFormat::Numeric(TimeUnit::Ms)
@@ -233,7 +228,7 @@ impl Session {
         match topic.kind {
             Kind::NBirth => self.node_birth(&payload, at, out, send),
             Kind::NDeath => self.node_death(&payload, out),
-            _ if self.node.is_none() => self.ask_rebirth(at, send),
+            _ if self.node.is_none() => self.remind_rebirth(at, send),
             _ => {
                 if !self.in_sequence(&payload, at, out, send) {
                     return;
@@ -262,11 +257,8 @@ impl Session {
                 self.release(w, out);
             }
             self.write(at, out, send);
-        } else if self
-            .rebirth_asked
-            .is_none_or(|a| at.duration_since(a) >= REBIRTH_EVERY)
-        {
-            self.ask_rebirth(at, send);
+        } else {
+            self.remind_rebirth(at, send);
         }
     }
 
@@ -287,6 +279,17 @@ impl Session {
 
     fn where_(&self) -> String {
         format!("sparkplug {}", self.target)
+    }
+
+    /// Asks for the births again if the last request is [`REBIRTH_EVERY`]
+    /// old: a node that keeps sending data while none came is not flooded.
+    fn remind_rebirth(&mut self, at: Instant, send: &mut Vec<Command>) {
+        if self
+            .rebirth_asked
+            .is_none_or(|a| at.duration_since(a) >= REBIRTH_EVERY)
+        {
+            self.ask_rebirth(at, send);
+        }
     }
 
     fn ask_rebirth(&mut self, at: Instant, send: &mut Vec<Command>) {
@@ -706,11 +709,6 @@ fn metric_number(p: &Payload, name: &str) -> Option<u64> {
 /// Sparkplug's milliseconds since the epoch as a time; `None` out of range.
 fn ms_to_time(ms: u64) -> Option<Time> {
     i64::try_from(ms).ok()?.checked_mul(1_000_000)
-}
-
-/// A payload's bytes, for commands.
-pub fn encode(p: &Payload) -> Vec<u8> {
-    p.encode_to_vec()
 }
 
 #[cfg(test)]
