@@ -15,6 +15,7 @@
 mod support;
 
 mod check_filter;
+mod checkpoint;
 mod control_law;
 mod cylinders_loop;
 mod demo_cli;

@@ -21,11 +21,13 @@
 
 use std::collections::HashMap;
 
+use serde::{Deserialize, Serialize};
+
 use super::part::{Hypothesis, PartDiagnoser, Readings};
 use crate::Time;
 
 /// What a set of hypotheses says: the verdict's ingredients.
-#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct Labels {
     /// The normal hypothesis survives: the verdict is normal.
     pub normal: bool,
@@ -328,6 +330,26 @@ impl Origins {
         self.at = [UNSTARTED; CLOCK_ROOM];
     }
 
+    /// Each clock's origin, `None` while unstarted.
+    pub(crate) fn to_vec(&self) -> Vec<Option<Time>> {
+        self.at[..self.clocks]
+            .iter()
+            .map(|&o| (o != UNSTARTED).then_some(o))
+            .collect()
+    }
+
+    /// `clocks` clocks with these origins, if as many are given.
+    pub(crate) fn from_slice(clocks: usize, origins: &[Option<Time>]) -> Option<Self> {
+        if origins.len() != clocks.min(CLOCK_ROOM) {
+            return None;
+        }
+        let mut o = Origins::new(clocks);
+        for (at, &origin) in o.at.iter_mut().zip(origins) {
+            *at = origin.unwrap_or(UNSTARTED);
+        }
+        Some(o)
+    }
+
     /// The readings at `t`.
     pub(crate) fn readings(&self, t: Time) -> Vec<Option<Time>> {
         let mut into = Vec::new();
@@ -462,15 +484,7 @@ impl Engine {
         }
         let labels = self.compute_labels(&key.1);
         let unknown = !labels.normal && labels.modes.is_empty();
-        let label_id = match self.label_index.get(&labels) {
-            Some(&i) => i,
-            None => {
-                self.labels.push(labels.clone());
-                let i = (self.labels.len() - 1) as u32;
-                self.label_index.insert(labels, i);
-                i
-            }
-        };
+        let label_id = self.intern_labels(labels);
         let (all, timers) = self.part.thresholds(&key.1);
         let id = self.states.len() as u32;
         let thresholds: Vec<Box<[Time]>> = all.into_iter().map(Vec::into_boxed_slice).collect();
@@ -486,6 +500,18 @@ impl Engine {
         });
         self.index.insert(key, id);
         id
+    }
+
+    /// The index of `labels`, added if new (a restored run's labels shown,
+    /// which no state built yet may have).
+    pub(crate) fn intern_labels(&mut self, labels: Labels) -> u32 {
+        if let Some(&i) = self.label_index.get(&labels) {
+            return i;
+        }
+        self.labels.push(labels.clone());
+        let i = (self.labels.len() - 1) as u32;
+        self.label_index.insert(labels, i);
+        i
     }
 
     fn compute_labels(&self, hyps: &[Hypothesis]) -> Labels {

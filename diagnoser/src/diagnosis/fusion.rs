@@ -61,6 +61,31 @@ impl Coordinator {
         }
     }
 
+    /// The latest verdicts, the flags raised and the view last shown: what
+    /// [`Coordinator::set_state`] takes back.
+    #[allow(clippy::type_complexity)]
+    pub(crate) fn state(
+        &self,
+    ) -> (
+        &[Option<Verdict>],
+        &[String],
+        &Option<(Vec<String>, Vec<String>)>,
+    ) {
+        (&self.latest, &self.flags, &self.shown)
+    }
+
+    /// Puts back a [`Coordinator::state`].
+    pub(crate) fn set_state(
+        &mut self,
+        latest: Vec<Option<Verdict>>,
+        flags: Vec<String>,
+        shown: Option<(Vec<String>, Vec<String>)>,
+    ) {
+        self.latest = latest;
+        self.flags = flags;
+        self.shown = shown;
+    }
+
     /// Forgets every verdict (a new log).
     pub fn reset(&mut self) {
         self.latest.iter_mut().for_each(|v| *v = None);

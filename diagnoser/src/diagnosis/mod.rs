@@ -10,6 +10,8 @@
 //!   verdict changes of SPEC §3.
 //! - [`partwise`]: the same over a recorded log, each part on its own
 //!   events, on several threads, with the same output.
+//! - [`snapshot`]: the diagnosers as data between two scans, to checkpoint
+//!   and take over from.
 //! - [`verdict`]: a part's verdict and its JSON line.
 //! - [`fusion`]: the coordinator, combining the parts' verdicts into a plant view.
 //!
@@ -27,10 +29,12 @@ pub mod part;
 mod part_run;
 pub mod partwise;
 pub mod run;
+pub mod snapshot;
 pub mod verdict;
 
 pub use engine::{Engine, Labels};
 pub use part::{Hypothesis, ModeKind, PartDiagnoser};
 pub use partwise::PartwiseReplay;
 pub use run::{DiagnoserOptions, PartSummary, PlantDiagnoser};
+pub use snapshot::Snapshot;
 pub use verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};

@@ -20,6 +20,8 @@
 
 use std::collections::HashMap;
 
+use serde::{Deserialize, Serialize};
+
 use crate::fault::FaultTemplate;
 use crate::model::{ModelClock, PartModel, SensorKind, edge_name};
 use crate::plant::{Part, Plant};
@@ -126,7 +128,7 @@ pub struct Mode {
 }
 
 /// A hypothesis: a mode and the part's physical state in it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct Hypothesis {
     /// Index in [`PartDiagnoser::modes`] (0 is normal).
     pub mode: u16,

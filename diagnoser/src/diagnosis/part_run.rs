@@ -6,8 +6,11 @@
 //! scans in time order and combines their verdicts, and
 //! [`super::PartwiseReplay`] runs the parts of a recorded log side by side.
 
+use serde::{Deserialize, Serialize};
+
 use super::engine::{Engine, NEVER, Origins, Restarted, UNEXPLAINED};
 use super::run::PartSummary;
+use super::snapshot::PartSnapshot;
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
 use crate::{Flag, Time, TimeUnit};
 
@@ -54,8 +57,8 @@ impl RunState {
 /// again, once it has come back to the first learned state it was seen in
 /// since, after leaving it: one cycle that the model explains. A fault found
 /// meanwhile is reported, but raises no `def_` flag until the episode is over.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Episode {
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub(crate) struct Episode {
     /// When the observations stopped fitting.
     since: Time,
     /// The first learned state the part was seen in after starting again.
@@ -156,6 +159,78 @@ impl PartRun {
             quiet: shown,
         };
         self.changes = 0;
+    }
+
+    /// Where the part stands, as data (see [`super::snapshot`]).
+    pub(crate) fn snapshot(&self) -> PartSnapshot {
+        let (e, run) = (&self.engine, &self.at);
+        PartSnapshot {
+            part: e.part.name.clone(),
+            obs: run.obs,
+            hypotheses: e.state(run.state).hyps.to_vec(),
+            origins: run.origins.to_vec(),
+            flags: run.flags,
+            shown: e.labels(run.shown).clone(),
+            next_timer: self.next_timer(),
+            last_command: run.last_command,
+            detected: run.detected,
+            episode: run.episode,
+            changes: self.changes,
+        }
+    }
+
+    /// Puts the part where `s` says; an error, and the part left as it was,
+    /// when `s` does not fit its diagnoser.
+    pub(crate) fn restore(&mut self, s: &PartSnapshot) -> Result<(), String> {
+        let e = &mut self.engine;
+        let part = &e.part;
+        let fail = |what: &str| Err(format!("part '{}': {what} do not fit the model", s.part));
+        if s.part != part.name {
+            return Err(format!(
+                "part '{}' where the model has '{}'",
+                s.part, part.name
+            ));
+        }
+        let vector = |v: u32| part.signals.len() >= 32 || v >> part.signals.len() == 0;
+        let modes = part.modes.len();
+        let partitions =
+            |bits: u32| part.partitions.len() >= 32 || bits >> part.partitions.len() == 0;
+        if !vector(s.obs)
+            || s.hypotheses
+                .iter()
+                .any(|h| !vector(h.phys) || h.mode as usize >= modes)
+        {
+            return fail("the state vectors or modes");
+        }
+        if s.hypotheses.is_empty() || s.hypotheses.windows(2).any(|w| w[0] >= w[1]) {
+            return fail("the hypotheses (not sorted, or none)");
+        }
+        let shown = &s.shown;
+        if !partitions(s.flags | shown.flags | shown.suspects)
+            || shown.modes.iter().any(|&m| m as usize >= modes)
+        {
+            return fail("the labels or flags");
+        }
+        let Some(origins) = Origins::from_slice(part.clocks.len(), &s.origins) else {
+            return fail("the clocks");
+        };
+        let state = e.intern(s.obs, s.hypotheses.clone());
+        let shown = e.intern_labels(s.shown.clone());
+        self.at = RunState {
+            state,
+            obs: s.obs,
+            origins,
+            flags: s.flags,
+            shown,
+            next_timer: s.next_timer.unwrap_or(NEVER),
+            last_command: s.last_command,
+            detected: s.detected,
+            episode: s.episode,
+            quiet: u32::MAX,
+        };
+        self.at.quiet = self.at.quiet();
+        self.changes = s.changes;
+        Ok(())
     }
 
     /// The observed state vector.

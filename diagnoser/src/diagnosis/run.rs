@@ -69,25 +69,25 @@ pub struct PartSummary {
 /// the time has come.
 #[derive(Debug, Clone)]
 pub struct PlantDiagnoser {
-    parts: Vec<PartRun>,
+    pub(super) parts: Vec<PartRun>,
     /// Per plant signal, the parts that read it and at which bit.
-    routes: Routes,
+    pub(super) routes: Routes,
     /// Per part, the bits the scan being read changed, with
     /// [`PlantDiagnoser::OPEN`] once the scan has touched the part.
-    open: Vec<u32>,
+    pub(super) open: Vec<u32>,
     /// Per part, the observed vector before the scan being read.
-    obs: Vec<u32>,
+    pub(super) obs: Vec<u32>,
     /// The parts the scan being read touched, in the order of their first
     /// events.
-    touched: Vec<u16>,
+    pub(super) touched: Vec<u16>,
     /// Per part, its next deadline ([`Time::MAX`]: none).
-    timers: Vec<Time>,
-    scan: Option<Time>,
+    pub(super) timers: Vec<Time>,
+    pub(super) scan: Option<Time>,
     /// Time of the last scan or of the start: deadlines before it have fired.
-    now: Time,
+    pub(super) now: Time,
     /// No deadline comes before it: the earliest, or earlier.
-    earliest: Option<Time>,
-    coordinator: Coordinator,
+    pub(super) earliest: Option<Time>,
+    pub(super) coordinator: Coordinator,
 }
 
 impl PlantDiagnoser {

@@ -1,12 +1,12 @@
 //! A part's verdict as SPEC §3 writes it: normal, certain or ambiguous, with
 //! its labels, flags, suspects and reason, one JSON line per change.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::{Time, TimeFormat};
 
 /// A part's verdict (SPEC §3).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VerdictKind {
     /// Certainly no fault: the labels are `["N"]`.
@@ -32,7 +32,7 @@ impl VerdictKind {
 pub const UNKNOWN_LABEL: &str = "unknown";
 
 /// A change of one part's verdict: one JSON line of `gardefou diagnose`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Verdict {
     /// When it changed, in nanoseconds (written in the log's time form).
     #[serde(skip)]
