@@ -1,17 +1,16 @@
-//! `gardefou fleet`: diagnosis of a plant out of its NATS JetStream stream,
-//! with no PLC attached (see [`runtime::jetstream::replay`]): the arguments,
-//! turned into the monitor's settings with the stream as source.
+//! `gardefou fleet`: a fleet worker, diagnosing plants out of their NATS
+//! JetStream streams with no PLC attached (see [`runtime::fleet`]): the
+//! arguments, turned into the worker's settings.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
-use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
+use diagnoser::diagnosis::DiagnoserOptions;
 use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, Time, time};
-use logs::IngestOptions;
-use runtime::monitor::{Config, SourceConfig};
+use runtime::fleet::{Served, Settings};
 
 /// Arguments of `gardefou fleet`.
 #[derive(Debug, Args)]
@@ -19,21 +18,33 @@ pub struct FleetArgs {
     /// The NATS server with the plants' streams: `nats://HOST:PORT`.
     #[arg(long, value_name = "URL")]
     nats: String,
-    /// Plant file of the plant served.
-    #[arg(long)]
-    plant: PathBuf,
-    /// Learned model (from `gardefou learn`).
-    #[arg(long)]
-    model: PathBuf,
-    /// The plant's name in the subjects, as the monitor published it
-    /// (default: the plant file's name).
+    /// Plant file of a plant served (repeat, each with its `--model`).
+    #[arg(long, required = true)]
+    plant: Vec<PathBuf>,
+    /// Learned model of each `--plant`, in the same order.
+    #[arg(long, required = true)]
+    model: Vec<PathBuf>,
+    /// Each plant's name in the subjects, as its monitor published it, in
+    /// the order of `--plant` (default: the plant file's name).
     #[arg(long, value_name = "NAME")]
-    nats_plant: Option<String>,
-    /// Serve `/status` (JSON) and `/metrics` (Prometheus) on this address.
+    nats_plant: Vec<String>,
+    /// The fleet: workers of one fleet share its plants, its checkpoints
+    /// and its verdict subjects.
+    #[arg(long, value_name = "NAME", default_value = "main")]
+    fleet: String,
+    /// This worker's name in the leases (default: host name and process id).
+    #[arg(long, value_name = "NAME")]
+    worker: Option<String>,
+    /// How often each plant's checkpoint is written.
+    #[arg(long, value_parser = time::parse_duration, default_value = "1s")]
+    checkpoint_every: Time,
+    /// Serve the fleet view on this address: `/` (a page that refreshes),
+    /// `/status` (JSON) and `/metrics` (Prometheus).
     #[arg(long, value_name = "ADDR")]
     http: Option<SocketAddr>,
-    /// Stop after this long, in wall-clock time (e.g. `10min`); without it,
-    /// the worker stops at the end of the monitor's run.
+    /// Stop after this long, in wall-clock time (e.g. `10min`), giving the
+    /// plants back; without it, the worker stops once every plant's monitor
+    /// has stopped and its stream is diagnosed to its end.
     #[arg(long, value_parser = time::parse_duration)]
     duration: Option<Time>,
     /// Longest an unexpected sensor edge shows before the sensor reads its real
@@ -44,37 +55,69 @@ pub struct FleetArgs {
 
 /// Runs `gardefou fleet`.
 pub fn run(args: FleetArgs) -> Result<(), Failure> {
-    let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
-    let model = Model::from_path(&args.model).map_err(Failure::bad)?;
-    let name = args
-        .nats_plant
-        .clone()
-        .unwrap_or_else(|| plant.name.clone());
-    let config = Config {
-        source: SourceConfig::Stream {
-            url: args.nats.clone(),
-            plant: name.clone(),
-        },
-        ingest: IngestOptions::default(),
-        confirm: None,
-        // A worker catching up with an archive lags the live clock by design.
-        max_lag: Duration::from_secs(365 * 86_400),
+    if args.plant.len() != args.model.len() {
+        return Err(Failure::bad(format!(
+            "--plant and --model: {} plant files and {} models; give one model per plant",
+            args.plant.len(),
+            args.model.len()
+        )));
+    }
+    if !args.nats_plant.is_empty() && args.nats_plant.len() != args.plant.len() {
+        return Err(Failure::bad(format!(
+            "--nats-plant: {} names for {} plants; give one per --plant, or none",
+            args.nats_plant.len(),
+            args.plant.len()
+        )));
+    }
+    let mut plants: Vec<Served> = Vec::new();
+    for (i, (p, m)) in args.plant.iter().zip(&args.model).enumerate() {
+        let plant = Plant::from_path(p).map_err(Failure::bad)?;
+        let bytes = std::fs::read(m).map_err(|e| Failure::bad(format!("{}: {e}", m.display())))?;
+        let model = Model::from_path(m).map_err(Failure::bad)?;
+        let name = args
+            .nats_plant
+            .get(i)
+            .cloned()
+            .unwrap_or_else(|| plant.name.clone());
+        if plants.iter().any(|s| s.name == name) {
+            return Err(Failure::bad(format!(
+                "--plant {}: a second plant named '{name}'; name each with --nats-plant",
+                p.display()
+            )));
+        }
+        plants.push(Served {
+            name,
+            plant,
+            model,
+            version: runtime::fleet::model_version(&bytes),
+        });
+    }
+    let nanos = |t: Time| Duration::from_nanos(t.max(0) as u64);
+    if args.checkpoint_every <= 0 {
+        return Err(Failure::bad("--checkpoint-every: must be positive"));
+    }
+    let settings = Settings {
+        url: args.nats,
+        fleet: args.fleet,
+        worker: args.worker.unwrap_or_else(default_worker),
+        plants,
+        checkpoint_every: nanos(args.checkpoint_every),
+        duration: args.duration.map(nanos),
         http: args.http,
-        output: None,
-        speed: 1.0,
-        duration: args.duration.map(|t| Duration::from_nanos(t.max(0) as u64)),
-        probe: None,
-        nats: None,
-        plant_field: Some(name),
+        // The diagnosers of the monitor that published the streams: its
+        // source was not polled, and it ran without held reactions.
+        options: DiagnoserOptions {
+            glitch_max: args.glitch_max,
+            ..DiagnoserOptions::default()
+        },
     };
-    // The diagnosers of the monitor that published the stream: its source
-    // was not polled; its flags may have gone back to a PLC, whose filter
-    // may hold reactions back, but that monitor ran without it then.
-    let options = DiagnoserOptions {
-        glitch_max: args.glitch_max,
-        ..DiagnoserOptions::default()
-    };
-    let diagnoser = PlantDiagnoser::new(&plant, &model, &options)
-        .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
-    runtime::monitor::run(plant, diagnoser, config)
+    runtime::fleet::run(settings)
+}
+
+/// The host's name and the process id.
+fn default_worker() -> String {
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .unwrap_or_else(|_| "worker".into());
+    format!("{host}-{}", std::process::id())
 }

@@ -227,6 +227,5 @@ fn config(args: &MonitorArgs, plant: &Plant) -> Config {
             .nats
             .as_ref()
             .map(|url| nats_settings(args, url, plant)),
-        plant_field: None,
     }
 }

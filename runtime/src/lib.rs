@@ -8,6 +8,9 @@
 //! - [`jetstream`]: a monitor's plant on NATS JetStream (`monitor --nats`):
 //!   its events, verdicts and flags published in order, kept through a
 //!   broker's absence.
+//! - [`fleet`]: fleet workers (`gardefou fleet`): many plants diagnosed
+//!   from their streams, shared between workers through leases, checkpointed
+//!   and taken over when a worker dies; the fleet view.
 //! - [`virtual_plc`]: the simulated sorting line scanning in real time under
 //!   safe control through the safety filter, behind a Modbus TCP server
 //!   (`gardefou simulate --serve-modbus`).
@@ -29,6 +32,7 @@
 
 pub mod closed_loop;
 pub mod flags;
+pub mod fleet;
 pub mod jetstream;
 pub mod monitor;
 pub mod probe;

@@ -23,6 +23,7 @@ mod diagnose_cli;
 mod diagnosis_soundness;
 mod filter_cli;
 mod filter_st;
+mod fleet;
 mod learn_cli;
 mod monitor_can;
 mod monitor_cli;

@@ -21,7 +21,7 @@ const EVENTS: &str = "datasets/data/sorting/F2/events.csv";
 
 /// The server, or `None` (after saying why) if there is none and peers are
 /// not required.
-fn nats_server() -> Option<String> {
+pub(crate) fn nats_server() -> Option<String> {
     let named = std::env::var("GARDEFOU_NATS_SERVER").ok();
     let found = named.or_else(|| {
         Command::new("nats-server")
@@ -41,12 +41,12 @@ fn nats_server() -> Option<String> {
 }
 
 /// A JetStream server on a loopback port, its store in `store`.
-struct Server {
+pub(crate) struct Server {
     child: Child,
 }
 
 impl Server {
-    fn start(bin: &str, port: u16, store: &Path) -> Server {
+    pub(crate) fn start(bin: &str, port: u16, store: &Path) -> Server {
         let child = Command::new(bin)
             .args(["-js", "-a", "127.0.0.1", "-p", &port.to_string(), "-sd"])
             .arg(store)
@@ -72,7 +72,7 @@ impl Drop for Server {
 }
 
 /// Every message of `stream` on `subject`, in stream order.
-fn messages(port: u16, stream: &str, subject: &str) -> Vec<String> {
+pub(crate) fn messages(port: u16, stream: &str, subject: &str) -> Vec<String> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()

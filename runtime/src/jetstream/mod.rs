@@ -18,7 +18,6 @@
 
 pub mod outbox;
 pub mod record;
-pub mod replay;
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -347,7 +346,7 @@ async fn send(js: &jetstream::Context, ids: &str, m: &Message) -> Result<bool, S
 }
 
 /// Makes the streams that are missing.
-async fn make_streams(js: &jetstream::Context) -> Result<(), String> {
+pub(crate) async fn make_streams(js: &jetstream::Context) -> Result<(), String> {
     for (name, subjects) in STREAMS {
         let config = stream::Config {
             name: name.to_string(),

@@ -5,6 +5,7 @@
 //! | `GARDEFOU_EVENTS` | `gardefou.events.PLANT` | what the source showed: the first values, a scan, a watermark, a lost plant, the end | JSON, below |
 //! | `GARDEFOU_VERDICTS` | `gardefou.verdicts.PLANT` | verdict line | the JSON line of SPEC §3, as `monitor` prints it |
 //! | `GARDEFOU_FLAGS` | `gardefou.flags.PLANT` | change of the flags written to the PLC | `{"t_ns":…,"up":["def_C4"]}` |
+//! | `GARDEFOU_FLEET` | `gardefou.fleet.FLEET.PLANT` | verdict line of a fleet worker ([`crate::fleet`]) | the line `fleet` prints, with `plant` and `model` fields; header `Gardefou-Line`: its number |
 //!
 //! Events, times in integer nanoseconds (`t_ns`), signals by name:
 //!
@@ -29,10 +30,11 @@ use serde_json::json;
 use crate::monitor::source::Item;
 
 /// The streams, and the subjects each takes.
-pub const STREAMS: [(&str, &str); 3] = [
+pub const STREAMS: [(&str, &str); 4] = [
     ("GARDEFOU_EVENTS", "gardefou.events.>"),
     ("GARDEFOU_VERDICTS", "gardefou.verdicts.>"),
     ("GARDEFOU_FLAGS", "gardefou.flags.>"),
+    ("GARDEFOU_FLEET", "gardefou.fleet.>"),
 ];
 
 /// Scan periods of the source's time between two watermarks published.
@@ -211,14 +213,15 @@ pub fn read(payload: &[u8], plant: &Plant) -> Result<Record, String> {
 }
 
 /// A time format's name in a start message.
-fn time_name(time: TimeFormat) -> &'static str {
+pub fn time_name(time: TimeFormat) -> &'static str {
     match time {
         TimeFormat::Numeric(unit) => unit.name(),
         TimeFormat::Rfc3339 => "rfc3339",
     }
 }
 
-fn time_of(name: &str) -> Option<TimeFormat> {
+/// The time format named `name` (as [`time_name`] names it).
+pub fn time_of(name: &str) -> Option<TimeFormat> {
     match name {
         "rfc3339" => Some(TimeFormat::Rfc3339),
         _ => name.parse::<TimeUnit>().ok().map(TimeFormat::Numeric),

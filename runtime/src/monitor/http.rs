@@ -54,9 +54,15 @@ pub const ACCEPT_PAUSE: Duration = Duration::from_millis(50);
 /// Binds `addr` and serves the endpoints in the background. Fails (before
 /// anything is read) if the address cannot be bound.
 pub async fn serve(addr: SocketAddr, status: Arc<Mutex<Status>>) -> Result<(), Failure> {
+    serve_routes(addr, routes(status)).await
+}
+
+/// Binds `addr` and serves `routes` in the background, under the same
+/// limits (a fleet worker's view).
+pub async fn serve_routes(addr: SocketAddr, routes: Router) -> Result<(), Failure> {
     let listener = listen(addr)
         .map_err(|e| Failure::BadInput(format!("--http {addr}: cannot listen: {e}")))?;
-    tokio::spawn(accept_loop(listener, routes(status), Limits::of_process()));
+    tokio::spawn(accept_loop(listener, routes, Limits::of_process()));
     Ok(())
 }
 

@@ -89,14 +89,6 @@ pub enum SourceConfig {
         /// The jitter allowed between the node's messages, in its time.
         lateness: Time,
     },
-    /// A plant's events read back from its NATS JetStream stream, as a
-    /// monitor with `--nats` published them (`gardefou fleet`).
-    Stream {
-        /// The server: `nats://HOST:PORT`.
-        url: String,
-        /// The plant's name in the subjects.
-        plant: String,
-    },
     /// Events as JSON lines on standard input (see [`stdin`]).
     Stdin {
         /// How late, in the source's time, a line may come after a later one;
@@ -147,8 +139,6 @@ pub struct Config {
     /// Where to publish the plant's events, verdicts and flags (`--nats`),
     /// if anywhere.
     pub nats: Option<crate::jetstream::Settings>,
-    /// A `plant` field for every verdict line (`gardefou fleet`), if any.
-    pub plant_field: Option<String>,
 }
 
 /// How long a stopping monitor waits for the broker to take what it has not
@@ -233,11 +223,6 @@ fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure>
             let name = format!("sparkplug {broker} {target}");
             Ok((Box::new(s) as Box<dyn Source>, name))
         }),
-        SourceConfig::Stream { url, plant: name } => {
-            let s = crate::jetstream::replay::StreamSource::open(&url, &name, &plant)?;
-            let label = format!("nats {url} {name}");
-            Box::new(move || Ok((Box::new(s) as Box<dyn Source>, label)))
-        }
         SourceConfig::Stdin { lateness } => {
             let s = stdin::Stdin {
                 plant,
@@ -256,8 +241,6 @@ struct Writer {
     terminal: bool,
     time: TimeFormat,
     error: Option<std::io::Error>,
-    /// `"plant":"NAME",` after the time of every JSON line, if set.
-    plant: Option<String>,
 }
 
 impl Writer {
@@ -268,22 +251,12 @@ impl Writer {
         let text = if self.terminal {
             readable(v, self.time)
         } else {
-            with_plant(v.json_line(self.time, None), self.plant.as_deref())
+            v.json_line(self.time, None)
         };
         if let Err(e) = writeln!(self.out, "{text}").and_then(|()| self.out.flush()) {
             self.error = Some(e);
         }
     }
-}
-
-/// A verdict's JSON line with `"plant":NAME` after its time (the first
-/// field, which holds no comma).
-fn with_plant(line: String, plant: Option<&str>) -> String {
-    let (Some(plant), Some(i)) = (plant, line.find(',')) else {
-        return line;
-    };
-    let name = serde_json::Value::String(plant.to_string());
-    format!("{},\"plant\":{name}{}", &line[..i], &line[i..])
 }
 
 /// Where verdicts go: the output, the flags, the status and the PLC.
@@ -718,7 +691,6 @@ async fn monitor(
         terminal,
         time: time_format,
         error: None,
-        plant: config.plant_field.clone(),
     };
     let confirmation = config.confirm.unwrap_or(plant.scan_period);
     let publisher = match &config.nats {
@@ -928,7 +900,7 @@ async fn wake_at(at: Instant) {
 
 /// SIGTERM, as a stream of signals (a stream that never yields where there is
 /// no such signal).
-fn terminate_signal() -> Result<Terminate, Failure> {
+pub(crate) fn terminate_signal() -> Result<Terminate, Failure> {
     #[cfg(unix)]
     {
         tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
@@ -942,12 +914,12 @@ fn terminate_signal() -> Result<Terminate, Failure> {
 }
 
 #[cfg(unix)]
-struct Terminate(tokio::signal::unix::Signal);
+pub(crate) struct Terminate(tokio::signal::unix::Signal);
 #[cfg(not(unix))]
-struct Terminate;
+pub(crate) struct Terminate;
 
 impl Terminate {
-    async fn recv(&mut self) {
+    pub(crate) async fn recv(&mut self) {
         #[cfg(unix)]
         {
             if self.0.recv().await.is_none() {
@@ -1093,7 +1065,6 @@ mod tests {
             terminal: false,
             time: f2.time,
             error: None,
-            plant: None,
         };
         let out = Outputs::new(
             writer,
@@ -1177,7 +1148,6 @@ mod tests {
             duration: None,
             probe: None,
             nats: None,
-            plant_field: None,
         };
         let output = lines.clone();
         let (plant, diagnoser) = (f2.plant.clone(), f2.diagnoser.clone());

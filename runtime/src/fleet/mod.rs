@@ -1,0 +1,662 @@
+//! Fleet workers (`gardefou fleet`): the diagnosers of many plants run out
+//! of their streams on NATS JetStream, with no PLC attached, shared between
+//! workers and taken over when one dies.
+//!
+//! Each plant a worker is given runs as a task of its own:
+//!
+//! 1. it takes the plant's [`lease::Lease`] (one worker at a time), or waits;
+//! 2. it reads the plant's [`plant::Checkpoint`] from the key-value bucket
+//!    `gardefou-FLEET-checkpoints`, and the number of the last verdict line
+//!    on `gardefou.fleet.FLEET.PLANT`;
+//! 3. it follows `gardefou.events.PLANT` with an ordered consumer from the
+//!    message after the checkpoint, feeds the records to the diagnosers
+//!    ([`plant::PlantRun`]), publishes each verdict line not yet published
+//!    (message id: fleet, plant, line number) and, once JetStream has it,
+//!    prints it;
+//! 4. every [`Settings::checkpoint_every`], it writes the checkpoint, with a
+//!    compare-and-set on its revision: a worker that finds it moved has lost
+//!    the plant, and stops.
+//!
+//! A worker killed between two checkpoints leaves its lease to expire; the
+//! next worker restores the checkpoint, reads again what followed, and
+//! skips the lines already published: the lines come out once, as one
+//! uninterrupted run gives them. (A worker killed in the instant between a
+//! line's acknowledgement and its write to stdout leaves that line on the
+//! stream only.)
+//!
+//! Without [`Settings::duration`], a worker stops once every plant it was
+//! given has ended (its monitor stopped); with it, it stops then, and gives
+//! its plants back after a last checkpoint, so that another takes them at
+//! once.
+
+pub mod lease;
+pub mod plant;
+pub mod view;
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use async_nats::HeaderMap;
+use async_nats::jetstream::{
+    self, consumer::DeliverPolicy, consumer::pull::OrderedConfig, kv, message::PublishMessage,
+};
+use diagnoser::diagnosis::fusion::PLANT_VIEW;
+use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
+use diagnoser::model::Model;
+use diagnoser::{Failure, Plant, TimeFormat};
+use futures_util::StreamExt;
+use tokio::sync::watch;
+use tokio::time::Instant;
+
+use self::lease::Lease;
+use self::plant::{Checkpoint, PlantRun, Resumed};
+use self::view::View;
+use crate::jetstream::record::{self, Record, Subjects};
+
+/// How long connecting waits for the server.
+const CONNECT_WAIT: Duration = Duration::from_secs(5);
+/// Wait before trying again after the broker failed a plant's task.
+const RETRY_EVERY: Duration = Duration::from_millis(500);
+/// The header with a fleet verdict line's number.
+pub const LINE_HEADER: &str = "Gardefou-Line";
+
+/// A plant a worker may serve.
+#[derive(Debug, Clone)]
+pub struct Served {
+    /// Its name in the subjects.
+    pub name: String,
+    /// Its plant file.
+    pub plant: Plant,
+    /// Its model.
+    pub model: Model,
+    /// The model's version, named in every verdict line.
+    pub version: String,
+}
+
+/// Settings of one worker.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    /// The server: `nats://HOST:PORT`.
+    pub url: String,
+    /// The fleet's name: its buckets and its verdict subjects. Workers of
+    /// one fleet share its plants.
+    pub fleet: String,
+    /// This worker's name, in the leases.
+    pub worker: String,
+    /// The plants this worker may serve.
+    pub plants: Vec<Served>,
+    /// How often a plant's checkpoint is written.
+    pub checkpoint_every: Duration,
+    /// Wall-clock time after which the worker stops, if any.
+    pub duration: Option<Duration>,
+    /// Where to serve the fleet view (`/status`, `/metrics`, `/`), if at all.
+    pub http: Option<SocketAddr>,
+    /// The diagnosers' options.
+    pub options: DiagnoserOptions,
+}
+
+/// The fleet's buckets and subjects.
+#[derive(Debug, Clone)]
+struct Names {
+    leases: String,
+    checkpoints: String,
+    fleet: String,
+}
+
+impl Names {
+    fn of(fleet: &str) -> Result<Names, String> {
+        // The fleet's name is checked as a plant's is: one subject token.
+        Subjects::of(fleet).map_err(|e| e.replace("plant's", "fleet's"))?;
+        Ok(Names {
+            leases: format!("gardefou-{fleet}-leases"),
+            checkpoints: format!("gardefou-{fleet}-checkpoints"),
+            fleet: fleet.to_string(),
+        })
+    }
+
+    fn verdicts(&self, plant: &str) -> String {
+        format!("gardefou.fleet.{}.{plant}", self.fleet)
+    }
+}
+
+/// What the plants' tasks share.
+struct Shared {
+    js: jetstream::Context,
+    leases: kv::Store,
+    checkpoints: kv::Store,
+    names: Names,
+    settings: Settings,
+    stop: watch::Receiver<bool>,
+    out: Mutex<Box<dyn Write + Send>>,
+    view: Arc<Mutex<View>>,
+}
+
+/// Runs a worker until every plant has ended, [`Settings::duration`], or a
+/// signal. Verdict lines go to stdout.
+pub fn run(settings: Settings) -> Result<(), Failure> {
+    let names = Names::of(&settings.fleet).map_err(|e| Failure::bad(format!("--fleet: {e}")))?;
+    for s in &settings.plants {
+        Subjects::of(&s.name).map_err(|e| Failure::bad(format!("plant {}: {e}", s.name)))?;
+    }
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
+    runtime.block_on(work(settings, names))
+}
+
+async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
+    let url = settings.url.clone();
+    let io = |e: String| Failure::Io(format!("nats {url}: {e}"));
+    let js = connect(&settings.url).await?;
+    crate::jetstream::make_streams(&js).await.map_err(io)?;
+    let bucket = |name: &str, max_age| kv::Config {
+        bucket: name.to_string(),
+        history: 1,
+        max_age,
+        storage: jetstream::stream::StorageType::File,
+        ..kv::Config::default()
+    };
+    let leases = js
+        .create_or_update_key_value(bucket(&names.leases, lease::TTL))
+        .await
+        .map_err(|e| io(format!("bucket {}: {e}", names.leases)))?;
+    let checkpoints = js
+        .create_or_update_key_value(bucket(&names.checkpoints, Duration::ZERO))
+        .await
+        .map_err(|e| io(format!("bucket {}: {e}", names.checkpoints)))?;
+    let view = Arc::new(Mutex::new(View::new(&settings)));
+    if let Some(addr) = settings.http {
+        view::serve(addr, view.clone()).await?;
+    }
+    let (stop_tx, stop) = watch::channel(false);
+    let shared = Arc::new(Shared {
+        js,
+        leases,
+        checkpoints,
+        names,
+        settings: settings.clone(),
+        stop,
+        out: Mutex::new(Box::new(std::io::stdout())),
+        view,
+    });
+    let tasks: Vec<_> = settings
+        .plants
+        .iter()
+        .cloned()
+        .map(|served| tokio::spawn(serve(shared.clone(), served)))
+        .collect();
+    let all_ended = futures_util::future::join_all(tasks);
+    tokio::pin!(all_ended);
+    let stop_at = settings.duration.map(|d| Instant::now() + d);
+    let mut terminate = crate::monitor::terminate_signal()?;
+    let outcome = tokio::select! {
+        results = &mut all_ended => Some(results),
+        _ = sleep_until(stop_at) => None,
+        _ = tokio::signal::ctrl_c() => None,
+        _ = terminate.recv() => None,
+    };
+    let results = match outcome {
+        Some(results) => results,
+        None => {
+            let _ = stop_tx.send(true);
+            all_ended.await
+        }
+    };
+    let failures: Vec<Failure> = results
+        .into_iter()
+        .filter_map(|r| match r {
+            Ok(Err(f)) => Some(f),
+            _ => None,
+        })
+        .collect();
+    let summary = shared.view.lock().map(|v| v.summary()).unwrap_or_default();
+    eprintln!("fleet: {summary}");
+    match failures.into_iter().next() {
+        Some(f) => Err(f),
+        None => Ok(()),
+    }
+}
+
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+async fn connect(url: &str) -> Result<jetstream::Context, Failure> {
+    let client = tokio::time::timeout(CONNECT_WAIT, async_nats::connect(url))
+        .await
+        .map_err(|_| {
+            Failure::Io(format!(
+                "nats {url}: no answer within {} s",
+                CONNECT_WAIT.as_secs()
+            ))
+        })?
+        .map_err(|e| Failure::Io(format!("nats {url}: {e}")))?;
+    Ok(jetstream::new(client))
+}
+
+/// Why a plant's following ended.
+enum Followed {
+    /// The plant's monitor stopped (without [`Settings::duration`]).
+    Ended,
+    /// The worker stops.
+    Stopped,
+    /// Another worker holds the plant now, or may.
+    LeaseLost(String),
+}
+
+/// One plant's task: takes the plant when it can, and follows it until it
+/// ends or the worker stops. A bad message or checkpoint ends the task with
+/// an error; the broker's troubles only delay it.
+async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
+    let key = served.name.clone();
+    let mut attempts = 0u32;
+    loop {
+        if *shared.stop.borrow() {
+            return Ok(());
+        }
+        match Lease::claim(&shared.leases, &key, &shared.settings.worker).await {
+            Ok(Some(lease)) => match follow(&shared, &served, lease).await {
+                Ok(Followed::Ended) | Ok(Followed::Stopped) => return Ok(()),
+                Ok(Followed::LeaseLost(why)) => {
+                    eprintln!(
+                        "warning: fleet: {key}: {why}; no more lines from this worker until it holds the plant again"
+                    );
+                    view(&shared, &key, |p| p.served = false);
+                }
+                Err(Trouble::Broker(why)) => {
+                    eprintln!("warning: fleet: {key}: {why}; trying again");
+                    view(&shared, &key, |p| p.served = false);
+                    pause(&shared, RETRY_EVERY).await;
+                }
+                Err(Trouble::Moved(why)) => {
+                    eprintln!("warning: fleet: {key}: {why}; another worker has it");
+                    view(&shared, &key, |p| p.served = false);
+                }
+                Err(Trouble::Fatal(f)) => return Err(f),
+            },
+            Ok(None) => {
+                // Held by another: has its plant ended?
+                attempts += 1;
+                if shared.settings.duration.is_none()
+                    && attempts.is_multiple_of(4)
+                    && read_checkpoint(&shared, &key)
+                        .await
+                        .is_ok_and(|c| c.is_some_and(|(c, _)| c.at.ended))
+                {
+                    return Ok(());
+                }
+                pause(&shared, lease::CLAIM_EVERY).await;
+            }
+            Err(why) => {
+                eprintln!("warning: fleet: {key}: {why}; trying again");
+                pause(&shared, RETRY_EVERY).await;
+            }
+        }
+    }
+}
+
+/// Until the worker stops.
+async fn stopped(stop: &mut watch::Receiver<bool>) {
+    let _ = stop.wait_for(|s| *s).await;
+}
+
+/// Waits `d`, or less if the worker stops.
+async fn pause(shared: &Shared, d: Duration) {
+    let mut stop = shared.stop.clone();
+    let _ = tokio::time::timeout(d, stopped(&mut stop)).await;
+}
+
+fn view(shared: &Shared, plant: &str, f: impl FnOnce(&mut view::PlantView)) {
+    if let Ok(mut v) = shared.view.lock()
+        && let Some(p) = v.plant_mut(plant)
+    {
+        f(p);
+    }
+}
+
+/// What stops a plant's following.
+enum Trouble {
+    /// The broker failed: the plant is given back, and taken again later.
+    Broker(String),
+    /// The checkpoint moved under this worker: another has the plant.
+    Moved(String),
+    /// The plant's data cannot be read: the worker stops.
+    Fatal(Failure),
+}
+
+impl From<String> for Trouble {
+    fn from(why: String) -> Trouble {
+        Trouble::Broker(why)
+    }
+}
+
+async fn read_checkpoint(shared: &Shared, key: &str) -> Result<Option<(Checkpoint, u64)>, Trouble> {
+    let entry = shared
+        .checkpoints
+        .entry(key)
+        .await
+        .map_err(|e| format!("checkpoint: {e}"))?;
+    let Some(entry) = entry.filter(|e| e.operation == kv::Operation::Put) else {
+        return Ok(None);
+    };
+    let c: Checkpoint = serde_json::from_slice(&entry.value).map_err(|e| {
+        Trouble::Fatal(Failure::bad(format!(
+            "bucket {}, key {key}, revision {}: not a checkpoint ({e})",
+            shared.names.checkpoints, entry.revision
+        )))
+    })?;
+    Ok(Some((c, entry.revision)))
+}
+
+/// A plant held: where it was left, and what it has already said.
+struct Held {
+    run: PlantRun,
+    time: TimeFormat,
+    /// The checkpoint's revision (`None`: none written yet).
+    revision: Option<u64>,
+    /// The number of the last line on the stream.
+    published: u64,
+    /// The sequence of the last checkpoint written.
+    written: u64,
+}
+
+/// Takes up the plant where its checkpoint left it.
+async fn resume(shared: &Shared, served: &Served) -> Result<Held, Trouble> {
+    let diagnoser = PlantDiagnoser::new(&served.plant, &served.model, &shared.settings.options)
+        .map_err(|e| Trouble::Fatal(Failure::bad(format!("plant {}: {e}", served.name))))?;
+    let mut run = PlantRun::new(diagnoser, served.plant.signals.len());
+    let mut time = TimeFormat::Rfc3339;
+    let mut revision = None;
+    if let Some((c, rev)) = read_checkpoint(shared, &served.name).await? {
+        let resumed = run.restore(&c, &served.version).map_err(|e| {
+            Trouble::Fatal(Failure::bad(format!(
+                "bucket {}, key {}: {e}",
+                shared.names.checkpoints, served.name
+            )))
+        })?;
+        time = c.time.as_deref().and_then(record::time_of).unwrap_or(time);
+        revision = Some(rev);
+        let how = match resumed {
+            Resumed::Diagnosers => "its diagnosers restored".to_string(),
+            Resumed::Restarted => format!(
+                "model {} replacing {}: the diagnosers start again from the values there",
+                served.version, c.model
+            ),
+            Resumed::NotStarted => "not started yet".to_string(),
+        };
+        eprintln!(
+            "fleet: {}: taken up from the checkpoint at message {} ({how})",
+            served.name, c.seq
+        );
+    }
+    let published = last_line(shared, &served.name).await?;
+    let written = run.seq;
+    Ok(Held {
+        run,
+        time,
+        revision,
+        published,
+        written,
+    })
+}
+
+/// The number of the plant's last verdict line on the fleet's stream.
+async fn last_line(shared: &Shared, plant: &str) -> Result<u64, Trouble> {
+    let (name, _) = record::STREAMS[3];
+    let stream = shared
+        .js
+        .get_stream(name)
+        .await
+        .map_err(|e| format!("stream {name}: {e}"))?;
+    match stream
+        .direct_get_last_for_subject(shared.names.verdicts(plant))
+        .await
+    {
+        Ok(m) => Ok(m
+            .headers
+            .get(LINE_HEADER)
+            .and_then(|v| v.as_str().parse().ok())
+            .unwrap_or(0)),
+        Err(e) if e.kind() == jetstream::stream::DirectGetErrorKind::NotFound => Ok(0),
+        Err(e) => Err(Trouble::Broker(format!("stream {name}: {e}"))),
+    }
+}
+
+/// Follows a plant held under `lease` until it ends, the worker stops, or
+/// the lease is lost.
+async fn follow(shared: &Shared, served: &Served, mut lease: Lease) -> Result<Followed, Trouble> {
+    let mut held = resume(shared, served).await?;
+    let until_end = shared.settings.duration.is_none();
+    if until_end && held.run.event_time().ended {
+        lease.release(&shared.leases).await;
+        return Ok(Followed::Ended);
+    }
+    view(shared, &served.name, |p| p.served = true);
+    let subjects = Subjects::of(&served.name).map_err(|e| Trouble::Fatal(Failure::bad(e)))?;
+    let (name, _) = record::STREAMS[0];
+    let stream = shared
+        .js
+        .get_stream(name)
+        .await
+        .map_err(|e| format!("stream {name}: {e}"))?;
+    let config = OrderedConfig {
+        filter_subject: subjects.events.clone(),
+        deliver_policy: DeliverPolicy::ByStartSequence {
+            start_sequence: held.run.seq + 1,
+        },
+        ..OrderedConfig::default()
+    };
+    let consumer = stream
+        .create_consumer(config)
+        .await
+        .map_err(|e| format!("consumer of {}: {e}", subjects.events))?;
+    let mut messages = consumer
+        .messages()
+        .await
+        .map_err(|e| format!("consumer of {}: {e}", subjects.events))?;
+    let mut renew = tokio::time::interval(lease::RENEW_EVERY);
+    let mut checkpoint = tokio::time::interval(shared.settings.checkpoint_every);
+    let mut stop = shared.stop.clone();
+    loop {
+        tokio::select! {
+            biased;
+            () = stopped(&mut stop) => {
+                write_checkpoint(shared, served, &mut held).await?;
+                lease.release(&shared.leases).await;
+                return Ok(Followed::Stopped);
+            }
+            _ = renew.tick() => {
+                if let Err(why) = lease.renew(&shared.leases).await {
+                    return Ok(Followed::LeaseLost(why));
+                }
+            }
+            _ = checkpoint.tick() => {
+                if held.run.seq != held.written {
+                    match write_checkpoint(shared, served, &mut held).await {
+                        Err(Trouble::Moved(why)) => return Ok(Followed::LeaseLost(why)),
+                        other => other?,
+                    }
+                }
+            }
+            message = messages.next() => {
+                let Some(message) = message else {
+                    return Err(Trouble::Broker(format!("the consumer of {} ended", subjects.events)));
+                };
+                let message = message.map_err(|e| format!("consumer of {}: {e}", subjects.events))?;
+                if !lease.fresh() {
+                    return Ok(Followed::LeaseLost("the lease was not renewed in time".into()));
+                }
+                take(shared, served, &mut held, &message).await?;
+                if until_end && held.run.event_time().ended {
+                    write_checkpoint(shared, served, &mut held).await?;
+                    lease.release(&shared.leases).await;
+                    view(shared, &served.name, |p| p.served = false);
+                    return Ok(Followed::Ended);
+                }
+            }
+        }
+    }
+}
+
+/// Takes in one message of the plant's stream: its verdict lines published
+/// (those not yet on the stream), then printed.
+async fn take(
+    shared: &Shared,
+    served: &Served,
+    held: &mut Held,
+    message: &jetstream::Message,
+) -> Result<(), Trouble> {
+    let info = message.info().map_err(|e| format!("message info: {e}"))?;
+    let (seq, pending) = (info.stream_sequence, info.pending);
+    let published_ns = info.published.unix_timestamp_nanos();
+    let record = record::read(&message.payload, &served.plant).map_err(|e| {
+        Trouble::Fatal(Failure::bad(format!(
+            "nats stream {}, message {seq}: {e}",
+            record::STREAMS[0].0
+        )))
+    })?;
+    if let Record::Start(_, _, Some(time)) = &record {
+        held.time = *time;
+    }
+    let (t, scan) = match &record {
+        Record::Scan(events) => (events.first().map(|e| e.t), events.len() as u64),
+        _ => (None, 0),
+    };
+    let first = held.run.lines + 1;
+    let mut verdicts: Vec<Verdict> = Vec::new();
+    held.run.take(seq, record, &mut |v| verdicts.push(v));
+    for (i, v) in verdicts.iter().enumerate() {
+        let number = first + i as u64;
+        if number <= held.published {
+            continue;
+        }
+        let line = fleet_line(v, held.time, &served.name, &served.version);
+        publish_line(shared, &served.name, number, &line).await?;
+        held.published = number;
+        print(shared, &line)?;
+    }
+    let now_ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i128);
+    let latency = Duration::from_nanos((now_ns - published_ns).max(0) as u64);
+    let view_line = verdicts.iter().rev().find(|v| v.part == PLANT_VIEW);
+    if let Ok(mut v) = shared.view.lock() {
+        v.count(scan, verdicts.len() as u64, latency);
+        if let Some(p) = v.plant_mut(&served.name) {
+            p.message(seq, pending, t.map(|t| view::time_value(t, held.time)));
+            if let Some(line) = view_line {
+                p.verdict(line, held.time);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A model's version: the first 12 hexadecimal digits of the SHA-256 of
+/// its `model.json`, so that the same model has the same version wherever
+/// it is read from.
+pub fn model_version(model_json: &[u8]) -> String {
+    let digest = ring::digest::digest(&ring::digest::SHA256, model_json);
+    digest.as_ref()[..6]
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// A verdict's line as the fleet prints it: the monitor's, with the plant
+/// and the model version after the time.
+pub fn fleet_line(v: &Verdict, time: TimeFormat, plant: &str, model: &str) -> String {
+    let line = v.json_line(time, None);
+    let Some(i) = line.find(',') else {
+        return line;
+    };
+    let plant = serde_json::Value::String(plant.to_string());
+    let model = serde_json::Value::String(model.to_string());
+    format!(
+        "{},\"plant\":{plant},\"model\":{model}{}",
+        &line[..i],
+        &line[i..]
+    )
+}
+
+async fn publish_line(
+    shared: &Shared,
+    plant: &str,
+    number: u64,
+    line: &str,
+) -> Result<(), Trouble> {
+    let mut headers = HeaderMap::new();
+    headers.insert(LINE_HEADER, number.to_string().as_str());
+    let id = format!("{}.{plant}.{number}", shared.names.fleet);
+    let message = PublishMessage::build()
+        .payload(line.as_bytes().to_vec().into())
+        .headers(headers)
+        .message_id(id);
+    let subject = shared.names.verdicts(plant);
+    let ack = shared
+        .js
+        .send_publish(subject, message)
+        .await
+        .map_err(|e| format!("publish: {e}"))?;
+    tokio::time::timeout(Duration::from_secs(5), ack)
+        .await
+        .map_err(|_| "no acknowledgement of a verdict line".to_string())?
+        .map_err(|e| format!("publish: {e}"))?;
+    Ok(())
+}
+
+fn print(shared: &Shared, line: &str) -> Result<(), Trouble> {
+    let Ok(mut out) = shared.out.lock() else {
+        return Ok(());
+    };
+    writeln!(out, "{line}")
+        .and_then(|()| out.flush())
+        .map_err(|e| {
+            Trouble::Fatal(if e.kind() == std::io::ErrorKind::BrokenPipe {
+                Failure::Closed
+            } else {
+                Failure::Io(format!("stdout: {e}"))
+            })
+        })
+}
+
+/// Writes the plant's checkpoint, if the revision is still the one read.
+async fn write_checkpoint(
+    shared: &Shared,
+    served: &Served,
+    held: &mut Held,
+) -> Result<(), Trouble> {
+    let time = Some(record::time_name(held.time).to_string());
+    let c = held.run.checkpoint(&served.version, time);
+    let bytes = serde_json::to_vec(&c).map_err(|e| Trouble::Fatal(Failure::Io(e.to_string())))?;
+    let key = &served.name;
+    let moved = |why: String| Trouble::Moved(format!("its checkpoint moved ({why})"));
+    let revision = match held.revision {
+        Some(rev) => shared
+            .checkpoints
+            .update(key, bytes.into(), rev)
+            .await
+            .map_err(|e| match e.kind() {
+                kv::UpdateErrorKind::WrongLastRevision => moved(e.to_string()),
+                _ => Trouble::Broker(format!("checkpoint: {e}")),
+            }),
+        None => shared
+            .checkpoints
+            .create(key, bytes.into())
+            .await
+            .map_err(|e| match e.kind() {
+                kv::CreateErrorKind::AlreadyExists => moved(e.to_string()),
+                _ => Trouble::Broker(format!("checkpoint: {e}")),
+            }),
+    }?;
+    held.revision = Some(revision);
+    held.written = held.run.seq;
+    view(shared, key, |p| p.checkpointed());
+    Ok(())
+}
