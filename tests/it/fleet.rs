@@ -102,11 +102,13 @@ fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
     let _server = Server::start(&bin, port, &dir.path().join("store"));
     let url = format!("nats://127.0.0.1:{port}");
 
-    // Worker A takes plants a and b first; B takes c, and waits for the rest.
-    let mut a = worker(&url, &["a", "b"], &["--worker", "A"]);
-    std::thread::sleep(Duration::from_millis(700));
-    let b = worker(&url, &["a", "b", "c"], &["--worker", "B"]);
-    std::thread::sleep(Duration::from_millis(700));
+    // Two workers share the plants.
+    let all = ["a", "b", "c"];
+    let mut workers = [
+        worker(&url, &all, &["--worker", "A"]),
+        worker(&url, &all, &["--worker", "B"]),
+    ];
+    std::thread::sleep(Duration::from_millis(1500));
     let monitors: Vec<Child> = PLANTS
         .iter()
         .map(|(name, run)| {
@@ -127,23 +129,29 @@ fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
         })
         .collect();
 
-    // A is killed as soon as it has printed its first line.
-    let stdout = a.stdout.take().expect("A's stdout");
+    // The first worker to print a line is killed 250 ms later (1.25 s of
+    // the plants' time), between two of its lines: a worker killed while it
+    // publishes a line leaves that line on the stream, not on its stdout.
     let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
+    for (i, w) in workers.iter_mut().enumerate() {
+        let stdout = w.stdout.take().expect("a worker's stdout");
+        let tx = tx.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send((i, line)).is_err() {
+                    break;
+                }
             }
-        }
-    });
-    let first = rx
+        });
+    }
+    let (killed, first) = rx
         .recv_timeout(Duration::from_secs(30))
-        .expect("worker A prints a line");
-    a.kill().expect("kills A");
-    let _ = a.wait();
-    let mut printed_by_a = vec![first];
-    printed_by_a.extend(rx.try_iter());
+        .expect("a worker prints a line");
+    std::thread::sleep(Duration::from_millis(250));
+    workers[killed].kill().expect("kills the worker");
+    let _ = workers[killed].wait();
+    let mut printed_by_killed = vec![first];
+    drop(tx);
     for m in monitors {
         let out = m.wait_with_output().expect("a monitor ends");
         assert!(
@@ -152,28 +160,57 @@ fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
-    let (by_b, err_b) = output(b);
+    // Every line, until both workers' outputs close (the survivor's at its end).
+    let mut by_survivor: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    loop {
+        match rx.recv_timeout(Duration::from_secs(60)) {
+            Ok((i, line)) if i == killed => printed_by_killed.push(line),
+            Ok((_, line)) => {
+                let v: serde_json::Value = serde_json::from_str(&line).expect("a JSON line");
+                let plant = v["plant"].as_str().expect("a plant field").to_string();
+                by_survivor.entry(plant).or_default().push(line);
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(mpsc::RecvTimeoutError::Timeout) => panic!("the surviving worker does not end"),
+        }
+    }
+    let [w0, w1] = workers;
+    let (survivor, victim) = if killed == 0 { (w1, w0) } else { (w0, w1) };
+    let stderr = |c: Child| {
+        String::from_utf8_lossy(&c.wait_with_output().expect("a worker ends").stderr).to_string()
+    };
+    let (err_killed, err_survivor) = (stderr(victim), stderr(survivor));
+    // Both served plants before the kill; the survivor took the others over.
+    let served = |err: &str| err.matches("served here from").count();
     assert!(
-        err_b.contains("taken up from the checkpoint at message"),
-        "B took nothing over from a checkpoint:\n{err_b}"
+        served(&err_killed) >= 1,
+        "the killed worker served nothing:\n{err_killed}"
+    );
+    assert!(
+        err_survivor.contains("served here from the checkpoint at message"),
+        "the survivor took nothing over from a checkpoint:\n{err_survivor}"
+    );
+    assert!(
+        served(&err_killed) < 3,
+        "the killed worker served every plant:\n{err_killed}"
     );
 
-    let (reference, err) = output(worker(&url, &["a", "b", "c"], &["--fleet", "reference"]));
+    let (reference, err) = output(worker(&url, &all, &["--fleet", "reference"]));
     assert_eq!(reference.len(), 3, "{err}");
-    let by_a = by_plant(printed_by_a.iter().map(String::as_str));
+    let by_killed = by_plant(printed_by_killed.iter().map(String::as_str));
     for (plant, want) in &reference {
-        let mut got = by_a.get(plant).cloned().unwrap_or_default();
-        got.extend(by_b.get(plant).cloned().unwrap_or_default());
+        let mut got = by_killed.get(plant).cloned().unwrap_or_default();
+        got.extend(by_survivor.get(plant).cloned().unwrap_or_default());
         assert!(
             &got == want,
-            "plant {plant}: the workers' lines differ from one run's\n--- A then B\n{}\n--- one run\n{}",
+            "plant {plant}: the workers' lines differ from one run's\n--- killed then survivor\n{}\n--- one run\n{}",
             got.join("\n"),
             want.join("\n")
         );
     }
     assert!(
-        by_a.keys().any(|p| by_b.contains_key(p)),
-        "no plant has lines from both workers: A {by_a:?}, B {by_b:?}"
+        by_killed.keys().any(|p| by_survivor.contains_key(p)),
+        "no plant has lines from both workers: {by_killed:?}, {by_survivor:?}"
     );
     assert!(
         reference

@@ -30,6 +30,7 @@
 //! once.
 
 pub mod lease;
+pub mod members;
 pub mod plant;
 pub mod view;
 
@@ -100,6 +101,7 @@ pub struct Settings {
 /// The fleet's buckets and subjects.
 #[derive(Debug, Clone)]
 struct Names {
+    workers: String,
     leases: String,
     checkpoints: String,
     fleet: String,
@@ -110,6 +112,7 @@ impl Names {
         // The fleet's name is checked as a plant's is: one subject token.
         Subjects::of(fleet).map_err(|e| e.replace("plant's", "fleet's"))?;
         Ok(Names {
+            workers: format!("gardefou-{fleet}-workers"),
             leases: format!("gardefou-{fleet}-leases"),
             checkpoints: format!("gardefou-{fleet}-checkpoints"),
             fleet: fleet.to_string(),
@@ -129,8 +132,18 @@ struct Shared {
     names: Names,
     settings: Settings,
     stop: watch::Receiver<bool>,
+    /// The fleet's live workers, sorted.
+    live: watch::Receiver<Vec<String>>,
     out: Mutex<Box<dyn Write + Send>>,
     view: Arc<Mutex<View>>,
+}
+
+impl Shared {
+    /// Whether `plant` prefers this worker among the live ones.
+    fn mine(&self, plant: &str) -> bool {
+        let live = self.live.borrow();
+        members::preferred(plant, &live).is_none_or(|w| w == self.settings.worker)
+    }
 }
 
 /// Runs a worker until every plant has ended, [`Settings::duration`], or a
@@ -140,6 +153,8 @@ pub fn run(settings: Settings) -> Result<(), Failure> {
     for s in &settings.plants {
         Subjects::of(&s.name).map_err(|e| Failure::bad(format!("plant {}: {e}", s.name)))?;
     }
+    Subjects::of(&settings.worker)
+        .map_err(|e| Failure::bad(format!("--worker: {}", e.replace("plant's", "worker's"))))?;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -167,6 +182,15 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
         .create_or_update_key_value(bucket(&names.checkpoints, Duration::ZERO))
         .await
         .map_err(|e| io(format!("bucket {}: {e}", names.checkpoints)))?;
+    let workers = js
+        .create_or_update_key_value(bucket(&names.workers, lease::TTL))
+        .await
+        .map_err(|e| io(format!("bucket {}: {e}", names.workers)))?;
+    let (live_tx, live) = watch::channel(Vec::new());
+    tokio::spawn(members::keep(workers, settings.worker.clone(), live_tx));
+    // Peers show within two renewals: only then is it known which plants
+    // prefer this worker.
+    tokio::time::sleep(lease::RENEW_EVERY * 2 + Duration::from_millis(100)).await;
     let view = Arc::new(Mutex::new(View::new(&settings)));
     if let Some(addr) = settings.http {
         view::serve(addr, view.clone()).await?;
@@ -179,6 +203,7 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
         names,
         settings: settings.clone(),
         stop,
+        live,
         out: Mutex::new(Box::new(std::io::stdout())),
         view,
     });
@@ -248,40 +273,58 @@ enum Followed {
     Stopped,
     /// Another worker holds the plant now, or may.
     LeaseLost(String),
+    /// A worker the plant prefers has joined: it takes the plant from the
+    /// checkpoint just written.
+    HandedOver,
 }
 
-/// One plant's task: takes the plant when it can, and follows it until it
-/// ends or the worker stops. A bad message or checkpoint ends the task with
-/// an error; the broker's troubles only delay it.
+/// One plant's task: takes the plant when this worker is the one it
+/// prefers, or when it has been left alone (see [`members`]), and follows it
+/// until it ends or the worker stops. A bad message or checkpoint ends the
+/// task with an error; the broker's troubles only delay it.
 async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
     let key = served.name.clone();
     let mut attempts = 0u32;
+    let mut alone_since: Option<Instant> = None;
     loop {
         if *shared.stop.borrow() {
             return Ok(());
         }
-        match Lease::claim(&shared.leases, &key, &shared.settings.worker).await {
-            Ok(Some(lease)) => match follow(&shared, &served, lease).await {
-                Ok(Followed::Ended) | Ok(Followed::Stopped) => return Ok(()),
-                Ok(Followed::LeaseLost(why)) => {
-                    eprintln!(
-                        "warning: fleet: {key}: {why}; no more lines from this worker until it holds the plant again"
-                    );
-                    view(&shared, &key, |p| p.served = false);
+        let mine = shared.mine(&key);
+        let now = mine || left_alone(&shared, &key, &mut alone_since).await;
+        let claimed = match now {
+            true => Lease::claim(&shared.leases, &key, &shared.settings.worker).await,
+            false => Ok(None),
+        };
+        match claimed {
+            Ok(Some(lease)) => {
+                alone_since = None;
+                match follow(&shared, &served, lease, mine).await {
+                    Ok(Followed::Ended) | Ok(Followed::Stopped) => return Ok(()),
+                    Ok(Followed::HandedOver) => {
+                        eprintln!("fleet: {key}: handed over to the worker it prefers");
+                        view(&shared, &key, |p| p.served = false);
+                    }
+                    Ok(Followed::LeaseLost(why)) => {
+                        eprintln!(
+                            "warning: fleet: {key}: {why}; no more lines from this worker until it holds the plant again"
+                        );
+                        view(&shared, &key, |p| p.served = false);
+                    }
+                    Err(Trouble::Broker(why)) => {
+                        eprintln!("warning: fleet: {key}: {why}; trying again");
+                        view(&shared, &key, |p| p.served = false);
+                        pause(&shared, RETRY_EVERY).await;
+                    }
+                    Err(Trouble::Moved(why)) => {
+                        eprintln!("warning: fleet: {key}: {why}; another worker has it");
+                        view(&shared, &key, |p| p.served = false);
+                    }
+                    Err(Trouble::Fatal(f)) => return Err(f),
                 }
-                Err(Trouble::Broker(why)) => {
-                    eprintln!("warning: fleet: {key}: {why}; trying again");
-                    view(&shared, &key, |p| p.served = false);
-                    pause(&shared, RETRY_EVERY).await;
-                }
-                Err(Trouble::Moved(why)) => {
-                    eprintln!("warning: fleet: {key}: {why}; another worker has it");
-                    view(&shared, &key, |p| p.served = false);
-                }
-                Err(Trouble::Fatal(f)) => return Err(f),
-            },
+            }
             Ok(None) => {
-                // Held by another: has its plant ended?
+                // Held by another, or left to it: has the plant ended?
                 attempts += 1;
                 if shared.settings.duration.is_none()
                     && attempts.is_multiple_of(4)
@@ -298,6 +341,19 @@ async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
                 pause(&shared, RETRY_EVERY).await;
             }
         }
+    }
+}
+
+/// Whether the plant `key`, which prefers another worker, has had no lease
+/// for [`members::ORPHAN_WAIT`] (its preferred worker does not take it).
+async fn left_alone(shared: &Shared, key: &str, since: &mut Option<Instant>) -> bool {
+    match shared.leases.entry(key).await {
+        Ok(Some(e)) if e.operation == kv::Operation::Put => {
+            *since = None;
+            false
+        }
+        Ok(_) => since.get_or_insert_with(Instant::now).elapsed() >= members::ORPHAN_WAIT,
+        Err(_) => false,
     }
 }
 
@@ -391,8 +447,13 @@ async fn resume(shared: &Shared, served: &Served) -> Result<Held, Trouble> {
             Resumed::NotStarted => "not started yet".to_string(),
         };
         eprintln!(
-            "fleet: {}: taken up from the checkpoint at message {} ({how})",
+            "fleet: {}: served here from the checkpoint at message {} ({how})",
             served.name, c.seq
+        );
+    } else {
+        eprintln!(
+            "fleet: {}: served here from the stream's start",
+            served.name
         );
     }
     let published = last_line(shared, &served.name).await?;
@@ -429,8 +490,14 @@ async fn last_line(shared: &Shared, plant: &str) -> Result<u64, Trouble> {
 }
 
 /// Follows a plant held under `lease` until it ends, the worker stops, or
-/// the lease is lost.
-async fn follow(shared: &Shared, served: &Served, mut lease: Lease) -> Result<Followed, Trouble> {
+/// the lease is lost. A plant taken as this worker's (`mine`) is handed
+/// over when a worker it prefers joins.
+async fn follow(
+    shared: &Shared,
+    served: &Served,
+    mut lease: Lease,
+    mine: bool,
+) -> Result<Followed, Trouble> {
     let mut held = resume(shared, served).await?;
     let until_end = shared.settings.duration.is_none();
     if until_end && held.run.event_time().ended {
@@ -474,6 +541,11 @@ async fn follow(shared: &Shared, served: &Served, mut lease: Lease) -> Result<Fo
             _ = renew.tick() => {
                 if let Err(why) = lease.renew(&shared.leases).await {
                     return Ok(Followed::LeaseLost(why));
+                }
+                if mine && !shared.mine(&served.name) {
+                    write_checkpoint(shared, served, &mut held).await?;
+                    lease.release(&shared.leases).await;
+                    return Ok(Followed::HandedOver);
                 }
             }
             _ = checkpoint.tick() => {
