@@ -37,6 +37,11 @@ use runtime::monitor::source::Item;
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
 
+/// A message: its time in the round, its payload, its events.
+type Message = (Time, Vec<u8>, u64);
+/// A plant's name and messages.
+type Published = (String, Vec<Message>);
+
 /// Simulated time before a plant's messages start: the line is up to speed.
 const WARM_UP: Time = 120 * 1_000_000_000;
 
@@ -55,7 +60,7 @@ fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
 /// sorting line (seed `i`) with one of its faults from a time drawn in the
 /// round; its start, every scan, a watermark every 10 scan periods, and its
 /// end; each with its time and its events.
-fn messages(plant: &Plant, i: usize, span: Time) -> Vec<(Time, Vec<u8>, u64)> {
+fn messages(plant: &Plant, i: usize, span: Time) -> Vec<Message> {
     let fault = &plant.faults[i % plant.faults.len()];
     let config = SimConfig {
         duration: WARM_UP + span,
@@ -223,7 +228,7 @@ fn nats_server(store: &Path, port: u16) -> Server {
 
 /// Publishes every plant's messages on the wall clock from `t0`; gives
 /// the events published.
-fn publish(url: &str, plants: &[(String, Vec<(Time, Vec<u8>, u64)>)], t0: Instant) -> u64 {
+fn publish(url: &str, plants: &[Published], t0: Instant) -> u64 {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -260,13 +265,7 @@ fn publish(url: &str, plants: &[(String, Vec<(Time, Vec<u8>, u64)>)], t0: Instan
     })
 }
 
-fn round(
-    workers: usize,
-    names: &[String],
-    plant_file: &Path,
-    plants: &[(String, Vec<(Time, Vec<u8>, u64)>)],
-    seconds: i64,
-) {
+fn round(workers: usize, names: &[String], plant_file: &Path, plants: &[Published], seconds: i64) {
     let store = tempfile::tempdir().expect("temp dir");
     let port = free_port();
     let _server = nats_server(store.path(), port);
@@ -341,7 +340,7 @@ fn main() {
     let names: Vec<String> = (0..count).map(|i| format!("p{i:05}")).collect();
     let span = seconds * 1_000_000_000;
     let clock = Instant::now();
-    let plants: Vec<(String, Vec<(Time, Vec<u8>, u64)>)> = names
+    let plants: Vec<Published> = names
         .iter()
         .enumerate()
         .map(|(i, n)| (n.clone(), messages(&plant, i, span)))
