@@ -10,6 +10,7 @@
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
@@ -92,6 +93,29 @@ fn by_plant<'a>(lines: impl Iterator<Item = &'a str>) -> BTreeMap<String, Vec<St
     by
 }
 
+/// A monitor per plant, replaying its slice at 5× and publishing it.
+fn monitors(dir: &Path, url: &str) -> Vec<Child> {
+    PLANTS
+        .iter()
+        .map(|(name, run)| {
+            let log = dir.join(format!("{name}.csv"));
+            std::fs::write(&log, slice(run)).expect("writes the slice");
+            let plant = path(&format!("datasets/data/sorting/{run}/plant.toml"));
+            Command::new(env!("CARGO_BIN_EXE_gardefou"))
+                .args(["monitor", "--plant", &plant, "--model", &path(MODEL)])
+                .arg("--replay")
+                .arg(&log)
+                .args(["--speed", "5", "--nats", url, "--nats-plant", name])
+                .arg("--nats-outbox")
+                .arg(dir.join(format!("{name}.outbox")))
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .expect("a monitor starts")
+        })
+        .collect()
+}
+
 #[test]
 fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
     let Some(bin) = nats_server() else {
@@ -109,25 +133,7 @@ fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
         worker(&url, &all, &["--worker", "B"]),
     ];
     std::thread::sleep(Duration::from_millis(1500));
-    let monitors: Vec<Child> = PLANTS
-        .iter()
-        .map(|(name, run)| {
-            let log = dir.path().join(format!("{name}.csv"));
-            std::fs::write(&log, slice(run)).expect("writes the slice");
-            let plant = path(&format!("datasets/data/sorting/{run}/plant.toml"));
-            Command::new(env!("CARGO_BIN_EXE_gardefou"))
-                .args(["monitor", "--plant", &plant, "--model", &path(MODEL)])
-                .arg("--replay")
-                .arg(&log)
-                .args(["--speed", "5", "--nats", &url, "--nats-plant", name])
-                .arg("--nats-outbox")
-                .arg(dir.path().join(format!("{name}.outbox")))
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .spawn()
-                .expect("a monitor starts")
-        })
-        .collect();
+    let monitors = monitors(dir.path(), &url);
 
     // The first worker to print a line is killed 250 ms later (1.25 s of
     // the plants' time), between two of its lines: a worker killed while it
