@@ -32,7 +32,7 @@ use datasets::inject::Injection;
 use datasets::sim::SimConfig;
 use datasets::sorting::simulate_in_memory;
 use diagnoser::{Event, MS, Plant, Time, TimeFormat};
-use runtime::jetstream::record::EventWriter;
+use runtime::jetstream::record::{EventWriter, Subjects};
 use runtime::monitor::source::Item;
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
@@ -115,6 +115,8 @@ struct Said {
     p99_us: Option<u64>,
     /// When each "taken up" line came.
     taken_up: Vec<Instant>,
+    /// Plants taken up.
+    served: usize,
 }
 
 fn spawn_worker(url: &str, names: &[String], plant: &Path, i: usize) -> (Child, Arc<Mutex<Said>>) {
@@ -146,6 +148,9 @@ fn spawn_worker(url: &str, names: &[String], plant: &Path, i: usize) -> (Child, 
     std::thread::spawn(move || {
         for line in BufReader::new(err).lines().map_while(Result::ok) {
             let mut s = s.lock().expect("said");
+            if line.contains("served here from") {
+                s.served += 1;
+            }
             if line.contains("served here from the checkpoint") {
                 s.taken_up.push(Instant::now());
             } else if let Some(rest) = line.strip_prefix("fleet: ") {
@@ -235,6 +240,13 @@ fn publish(url: &str, plants: &[Published], t0: Instant) -> u64 {
         .expect("a runtime");
     rt.block_on(async {
         let client = async_nats::connect(url).await.expect("connects");
+        let js = async_nats::jetstream::new(client.clone());
+        for (name, _) in plants {
+            let subjects = Subjects::of(name).expect("a plant's name");
+            runtime::jetstream::make_streams(&js, &subjects)
+                .await
+                .expect("the streams");
+        }
         let mut next = vec![0usize; plants.len()];
         let mut events = 0u64;
         let mut tick = tokio::time::interval(Duration::from_millis(5));
@@ -265,7 +277,16 @@ fn publish(url: &str, plants: &[Published], t0: Instant) -> u64 {
     })
 }
 
-fn round(workers: usize, names: &[String], plant_file: &Path, plants: &[Published], seconds: i64) {
+/// One round: `workers` workers, all given every plant; with `kill`, the
+/// first is killed half-way.
+fn round(
+    workers: usize,
+    kill: bool,
+    names: &[String],
+    plant_file: &Path,
+    plants: &[Published],
+    seconds: i64,
+) {
     let store = tempfile::tempdir().expect("temp dir");
     let port = free_port();
     let _server = nats_server(store.path(), port);
@@ -273,12 +294,23 @@ fn round(workers: usize, names: &[String], plant_file: &Path, plants: &[Publishe
     let mut children: Vec<(Child, Arc<Mutex<Said>>)> = (0..workers)
         .map(|i| spawn_worker(&url, names, plant_file, i))
         .collect();
-    std::thread::sleep(Duration::from_secs(3));
+    // Publishing starts once every plant is served.
+    let started = Instant::now();
+    let serving = || {
+        children
+            .iter()
+            .map(|(_, s)| s.lock().expect("said").served)
+            .sum::<usize>()
+    };
+    while serving() < names.len() && started.elapsed() < Duration::from_secs(120) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let startup = started.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let killed_at: Arc<Mutex<Option<Instant>>> = Arc::new(Mutex::new(None));
     let rss: Arc<Mutex<u64>> = Arc::new(Mutex::new(0));
     let pids: Vec<u32> = children.iter().map(|(c, _)| c.id()).collect();
-    let victim = (workers > 1).then(|| pids[0]);
+    let victim = (kill && workers > 1).then(|| pids[0]);
     {
         let (killed_at, rss, pids) = (killed_at.clone(), rss.clone(), pids.clone());
         std::thread::spawn(move || {
@@ -313,8 +345,9 @@ fn round(workers: usize, names: &[String], plant_file: &Path, plants: &[Publishe
     });
     let rss = *rss.lock().expect("rss");
     println!(
-        "| {} | {workers} | {:.0} | {} | {lines} | {} | {} | {} | {:.0} |",
+        "| {} | {workers} | {} | {startup:.1} | {:.0} | {} | {lines} | {} | {} | {} | {:.0} |",
         names.len(),
+        if victim.is_some() { "yes" } else { "no" },
         events as f64 / published_in,
         diagnosed,
         p50.map_or("-".into(), |v| format!("{:.1}", v as f64 / 1000.0)),
@@ -353,10 +386,13 @@ fn main() {
         "{count} plants, {seconds} s per round; latency in ms; memory in kB per plant (resident, all workers)"
     );
     println!(
-        "| plants | workers | events/s published | events diagnosed | verdict lines | p50 | p99 | takeover (s) | RSS/plant |"
+        "| plants | workers | one killed | all served after (s) | events/s published | events diagnosed | verdict lines | p50 | p99 | takeover (s) | RSS/plant |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for w in rounds {
-        round(w, &names, &plant_file, &plants, seconds);
+        round(w, false, &names, &plant_file, &plants, seconds);
+        if w > 1 {
+            round(w, true, &names, &plant_file, &plants, seconds);
+        }
     }
 }

@@ -36,7 +36,7 @@ pub struct FleetArgs {
     #[arg(long, value_name = "NAME")]
     worker: Option<String>,
     /// How often each plant's checkpoint is written.
-    #[arg(long, value_parser = time::parse_duration, default_value = "1s")]
+    #[arg(long, value_parser = time::parse_duration, default_value = "2s")]
     checkpoint_every: Time,
     /// Serve the fleet view on this address: `/` (a page that refreshes),
     /// `/status` (JSON) and `/metrics` (Prometheus).

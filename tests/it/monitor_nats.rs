@@ -165,7 +165,7 @@ fn the_stream_keeps_every_event_and_verdict_through_a_broker_restart() {
     );
     assert_eq!(verdicts, printed);
 
-    let events = messages(port, "GARDEFOU_EVENTS", "gardefou.events.f2");
+    let events = messages(port, "GARDEFOU_EVENTS_f2", "gardefou.events.f2");
     let parsed: Vec<serde_json::Value> = events
         .iter()
         .map(|e| serde_json::from_str(e).expect("JSON"))

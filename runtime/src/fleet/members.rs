@@ -18,11 +18,13 @@
 //! assert!((400..600).contains(&mine), "{mine}");
 //! ```
 
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use async_nats::jetstream::kv;
 use futures_util::StreamExt;
 use tokio::sync::watch;
+use tokio::time::Instant;
 
 use super::lease;
 
@@ -51,14 +53,28 @@ pub fn preferred<'a>(plant: &str, workers: &'a [String]) -> Option<&'a str> {
         .map(String::as_str)
 }
 
-/// Keeps this worker's name in the bucket, and the live workers' names in
-/// `live` (sorted), until the process ends.
-pub async fn keep(bucket: kv::Store, me: String, live: watch::Sender<Vec<String>>) {
+/// Keeps this worker's name in the bucket, when it was last written in
+/// `written`, and the live workers' names in `live` (sorted), until the
+/// process ends.
+pub async fn keep(
+    bucket: kv::Store,
+    me: String,
+    live: watch::Sender<Vec<String>>,
+    written: Arc<Mutex<Option<Instant>>>,
+) {
     let mut tick = tokio::time::interval(lease::RENEW_EVERY);
     loop {
         tick.tick().await;
-        if bucket.put(&me, Vec::new().into()).await.is_err() {
+        let at = Instant::now();
+        let put = bucket.put(&me, b"alive".to_vec().into());
+        if !matches!(
+            tokio::time::timeout(lease::RENEW_EVERY, put).await,
+            Ok(Ok(_))
+        ) {
             continue;
+        }
+        if let Ok(mut w) = written.lock() {
+            *w = Some(at);
         }
         let Ok(keys) = bucket.keys().await else {
             continue;

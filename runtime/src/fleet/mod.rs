@@ -51,7 +51,7 @@ use futures_util::StreamExt;
 use tokio::sync::watch;
 use tokio::time::Instant;
 
-use self::lease::Lease;
+use self::lease::{Table, Taken};
 use self::plant::{Checkpoint, PlantRun, Resumed};
 use self::view::View;
 use crate::jetstream::record::{self, Record, Subjects};
@@ -60,6 +60,9 @@ use crate::jetstream::record::{self, Record, Subjects};
 const CONNECT_WAIT: Duration = Duration::from_secs(5);
 /// Wait before trying again after the broker failed a plant's task.
 const RETRY_EVERY: Duration = Duration::from_millis(500);
+/// Plants taken up at once: a worker starting with a thousand plants makes
+/// their consumers a few at a time.
+const STARTING: usize = 16;
 /// The header with a fleet verdict line's number.
 pub const LINE_HEADER: &str = "Gardefou-Line";
 
@@ -127,6 +130,11 @@ impl Names {
 /// What the plants' tasks share.
 struct Shared {
     js: jetstream::Context,
+    /// `GARDEFOU_FLEET`.
+    verdicts: jetstream::stream::Stream,
+    /// Plants being taken up at once (their checkpoint read, their consumer
+    /// made), at most [`STARTING`].
+    starting: tokio::sync::Semaphore,
     leases: kv::Store,
     checkpoints: kv::Store,
     names: Names,
@@ -134,6 +142,12 @@ struct Shared {
     stop: watch::Receiver<bool>,
     /// The fleet's live workers, sorted.
     live: watch::Receiver<Vec<String>>,
+    /// When this worker's name was last written.
+    written: Arc<Mutex<Option<Instant>>>,
+    /// Every plant's lease.
+    table: Table,
+    /// Counts changes of the leases and of the live workers.
+    changes: watch::Receiver<u64>,
     out: Mutex<Box<dyn Write + Send>>,
     view: Arc<Mutex<View>>,
 }
@@ -143,6 +157,35 @@ impl Shared {
     fn mine(&self, plant: &str) -> bool {
         let live = self.live.borrow();
         members::preferred(plant, &live).is_none_or(|w| w == self.settings.worker)
+    }
+
+    /// Whether `worker` is alive.
+    fn is_live(&self, worker: &str) -> bool {
+        self.live.borrow().iter().any(|w| w == worker)
+    }
+
+    /// Whether this worker is surely still taken for alive: its name was
+    /// written less than [`lease::TTL`] less [`lease::MARGIN`] ago.
+    fn alive(&self) -> bool {
+        self.written
+            .lock()
+            .ok()
+            .and_then(|w| *w)
+            .is_some_and(|at| at.elapsed() < lease::TTL - lease::MARGIN)
+    }
+
+    /// Why this worker may no longer hold `plant`'s lease, if it may not.
+    fn lost(&self, plant: &str) -> Option<String> {
+        if !self.alive() {
+            return Some("this worker's name was not written in time".into());
+        }
+        let holder = self.table.get(plant).and_then(|s| s.holder);
+        (holder.as_deref() != Some(self.settings.worker.as_str())).then(|| {
+            format!(
+                "the lease is {}",
+                holder.map_or("given back".into(), |h| format!("held by {h}"))
+            )
+        })
     }
 }
 
@@ -155,7 +198,10 @@ pub fn run(settings: Settings) -> Result<(), Failure> {
     }
     Subjects::of(&settings.worker)
         .map_err(|e| Failure::bad(format!("--worker: {}", e.replace("plant's", "worker's"))))?;
-    let runtime = tokio::runtime::Builder::new_current_thread()
+    // Two threads: the plants' tasks keep one busy, and the worker's name
+    // must still be written in time.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
         .enable_all()
         .build()
         .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
@@ -166,7 +212,11 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
     let url = settings.url.clone();
     let io = |e: String| Failure::Io(format!("nats {url}: {e}"));
     let js = connect(&settings.url).await?;
-    crate::jetstream::make_streams(&js).await.map_err(io)?;
+    for (name, subject) in record::STREAMS {
+        crate::jetstream::make_stream(&js, name, subject)
+            .await
+            .map_err(io)?;
+    }
     let bucket = |name: &str, max_age| kv::Config {
         bucket: name.to_string(),
         history: 1,
@@ -175,22 +225,50 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
         ..kv::Config::default()
     };
     let leases = js
-        .create_or_update_key_value(bucket(&names.leases, lease::TTL))
+        .create_or_update_key_value(bucket(&names.leases, Duration::ZERO))
         .await
         .map_err(|e| io(format!("bucket {}: {e}", names.leases)))?;
     let checkpoints = js
         .create_or_update_key_value(bucket(&names.checkpoints, Duration::ZERO))
         .await
         .map_err(|e| io(format!("bucket {}: {e}", names.checkpoints)))?;
-    let workers = js
+    // The worker's name goes on a connection of its own, so that it is not
+    // queued behind the plants' traffic.
+    let workers = connect(&settings.url)
+        .await?
         .create_or_update_key_value(bucket(&names.workers, lease::TTL))
         .await
         .map_err(|e| io(format!("bucket {}: {e}", names.workers)))?;
     let (live_tx, live) = watch::channel(Vec::new());
-    tokio::spawn(members::keep(workers, settings.worker.clone(), live_tx));
+    let written = Arc::new(Mutex::new(None));
+    tokio::spawn(members::keep(
+        workers,
+        settings.worker.clone(),
+        live_tx,
+        written.clone(),
+    ));
+    let (changes_tx, changes) = watch::channel(0u64);
+    let table = Table::follow(leases.clone(), changes_tx.clone())
+        .await
+        .map_err(io)?;
+    let mut live_changes = live.clone();
+    tokio::spawn(async move {
+        while live_changes.changed().await.is_ok() {
+            changes_tx.send_modify(|n| *n += 1);
+        }
+    });
     // Peers show within two renewals: only then is it known which plants
     // prefer this worker.
     tokio::time::sleep(lease::RENEW_EVERY * 2 + Duration::from_millis(100)).await;
+    let stream = |name: &'static str| {
+        let js = js.clone();
+        async move {
+            js.get_stream(name)
+                .await
+                .map_err(|e| format!("stream {name}: {e}"))
+        }
+    };
+    let verdicts = stream(record::FLEET_STREAM).await.map_err(io)?;
     let view = Arc::new(Mutex::new(View::new(&settings)));
     if let Some(addr) = settings.http {
         view::serve(addr, view.clone()).await?;
@@ -198,12 +276,17 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
     let (stop_tx, stop) = watch::channel(false);
     let shared = Arc::new(Shared {
         js,
+        verdicts,
+        starting: tokio::sync::Semaphore::new(STARTING),
         leases,
         checkpoints,
         names,
         settings: settings.clone(),
         stop,
         live,
+        written,
+        table,
+        changes,
         out: Mutex::new(Box::new(std::io::stdout())),
         view,
     });
@@ -278,82 +361,101 @@ enum Followed {
     HandedOver,
 }
 
-/// One plant's task: takes the plant when this worker is the one it
-/// prefers, or when it has been left alone (see [`members`]), and follows it
-/// until it ends or the worker stops. A bad message or checkpoint ends the
-/// task with an error; the broker's troubles only delay it.
+/// How often a plant's task looks again at its lease with no change seen
+/// (a plant left free long enough; a holder's name expired).
+const LOOK_EVERY: Duration = Duration::from_millis(250);
+
+/// One plant's task: takes the plant's lease when it is free and this
+/// worker is the one it prefers, or when it has been free for
+/// [`members::ORPHAN_WAIT`]; follows the plant while it holds it; ends when
+/// the plant has ended (without [`Settings::duration`]) or the worker stops.
+/// A bad message or checkpoint ends the task with an error; the broker's
+/// troubles only delay it.
 async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
     let key = served.name.clone();
-    let mut attempts = 0u32;
-    let mut alone_since: Option<Instant> = None;
+    let until_end = shared.settings.duration.is_none();
+    let mut changes = shared.changes.clone();
+    let mut free_since: Option<Instant> = None;
     loop {
         if *shared.stop.borrow() {
             return Ok(());
         }
-        let mine = shared.mine(&key);
-        let now = mine || left_alone(&shared, &key, &mut alone_since).await;
-        let claimed = match now {
-            true => Lease::claim(&shared.leases, &key, &shared.settings.worker).await,
-            false => Ok(None),
-        };
-        match claimed {
-            Ok(Some(lease)) => {
-                alone_since = None;
-                match follow(&shared, &served, lease, mine).await {
-                    Ok(Followed::Ended) | Ok(Followed::Stopped) => return Ok(()),
-                    Ok(Followed::HandedOver) => {
-                        eprintln!("fleet: {key}: handed over to the worker it prefers");
-                        view(&shared, &key, |p| p.served = false);
+        let seen = shared.table.get(&key);
+        let holder = seen.as_ref().and_then(|s| s.holder.clone());
+        if until_end && holder.as_deref() == Some(lease::ENDED) {
+            return Ok(());
+        }
+        let free = holder
+            .as_deref()
+            .is_none_or(|h| h == lease::ENDED || !shared.is_live(h));
+        if !free {
+            free_since = None;
+        } else if shared.alive() {
+            let mine = shared.mine(&key);
+            let since = *free_since.get_or_insert_with(Instant::now);
+            if mine || since.elapsed() >= members::ORPHAN_WAIT {
+                let me = &shared.settings.worker;
+                match lease::take(&shared.leases, &key, me, seen.as_ref()).await {
+                    Ok(Taken::Held(revision)) => {
+                        free_since = None;
+                        let held = Holding { revision, mine };
+                        if let Some(end) = hold(&shared, &served, held).await? {
+                            return Ok(end);
+                        }
                     }
-                    Ok(Followed::LeaseLost(why)) => {
-                        eprintln!(
-                            "warning: fleet: {key}: {why}; no more lines from this worker until it holds the plant again"
-                        );
-                        view(&shared, &key, |p| p.served = false);
-                    }
-                    Err(Trouble::Broker(why)) => {
+                    Ok(Taken::No) => {}
+                    Err(why) => {
                         eprintln!("warning: fleet: {key}: {why}; trying again");
-                        view(&shared, &key, |p| p.served = false);
                         pause(&shared, RETRY_EVERY).await;
                     }
-                    Err(Trouble::Moved(why)) => {
-                        eprintln!("warning: fleet: {key}: {why}; another worker has it");
-                        view(&shared, &key, |p| p.served = false);
-                    }
-                    Err(Trouble::Fatal(f)) => return Err(f),
                 }
-            }
-            Ok(None) => {
-                // Held by another, or left to it: has the plant ended?
-                attempts += 1;
-                if shared.settings.duration.is_none()
-                    && attempts.is_multiple_of(4)
-                    && read_checkpoint(&shared, &key)
-                        .await
-                        .is_ok_and(|c| c.is_some_and(|(c, _)| c.at.ended))
-                {
-                    return Ok(());
-                }
-                pause(&shared, lease::CLAIM_EVERY).await;
-            }
-            Err(why) => {
-                eprintln!("warning: fleet: {key}: {why}; trying again");
-                pause(&shared, RETRY_EVERY).await;
+                continue;
             }
         }
+        let _ = tokio::time::timeout(LOOK_EVERY, changes.changed()).await;
     }
 }
 
-/// Whether the plant `key`, which prefers another worker, has had no lease
-/// for [`members::ORPHAN_WAIT`] (its preferred worker does not take it).
-async fn left_alone(shared: &Shared, key: &str, since: &mut Option<Instant>) -> bool {
-    match shared.leases.entry(key).await {
-        Ok(Some(e)) if e.operation == kv::Operation::Put => {
-            *since = None;
-            false
+/// The lease of a plant this worker holds: its revision, and whether it
+/// was taken as the plant's preferred worker.
+#[derive(Debug, Clone, Copy)]
+struct Holding {
+    revision: u64,
+    mine: bool,
+}
+
+/// Follows a plant held, and says what became of it: `Some(())` when the
+/// task is over, `None` when the plant may be taken again later.
+async fn hold(shared: &Shared, served: &Served, held: Holding) -> Result<Option<()>, Failure> {
+    let key = &served.name;
+    let outcome = follow(shared, served, held).await;
+    view(shared, key, |p| p.served = false);
+    match outcome {
+        Ok(Followed::Ended) | Ok(Followed::Stopped) => Ok(Some(())),
+        Ok(Followed::HandedOver) => {
+            eprintln!("fleet: {key}: handed over to the worker it prefers");
+            Ok(None)
         }
-        Ok(_) => since.get_or_insert_with(Instant::now).elapsed() >= members::ORPHAN_WAIT,
-        Err(_) => false,
+        Ok(Followed::LeaseLost(why)) => {
+            eprintln!(
+                "warning: fleet: {key}: {why}; no more lines from this worker until it holds the plant again"
+            );
+            Ok(None)
+        }
+        Err(Trouble::Broker(why)) => {
+            eprintln!("warning: fleet: {key}: {why}; trying again");
+            lease::give_back(&shared.leases, key, held.revision, "").await;
+            pause(shared, RETRY_EVERY).await;
+            Ok(None)
+        }
+        Err(Trouble::Moved(why)) => {
+            eprintln!("warning: fleet: {key}: {why}; another worker has it");
+            Ok(None)
+        }
+        Err(Trouble::Fatal(f)) => {
+            lease::give_back(&shared.leases, key, held.revision, "").await;
+            Err(f)
+        }
     }
 }
 
@@ -469,12 +571,7 @@ async fn resume(shared: &Shared, served: &Served) -> Result<Held, Trouble> {
 
 /// The number of the plant's last verdict line on the fleet's stream.
 async fn last_line(shared: &Shared, plant: &str) -> Result<u64, Trouble> {
-    let (name, _) = record::STREAMS[3];
-    let stream = shared
-        .js
-        .get_stream(name)
-        .await
-        .map_err(|e| format!("stream {name}: {e}"))?;
+    let (name, stream) = (record::FLEET_STREAM, &shared.verdicts);
     match stream
         .direct_get_last_for_subject(shared.names.verdicts(plant))
         .await
@@ -489,37 +586,34 @@ async fn last_line(shared: &Shared, plant: &str) -> Result<u64, Trouble> {
     }
 }
 
-/// Follows a plant held under `lease` until it ends, the worker stops, or
-/// the lease is lost. A plant taken as this worker's (`mine`) is handed
-/// over when a worker it prefers joins.
-async fn follow(
-    shared: &Shared,
-    served: &Served,
-    mut lease: Lease,
-    mine: bool,
-) -> Result<Followed, Trouble> {
+/// Follows a plant held until it ends, the worker stops, or the lease is
+/// lost. A plant taken as this worker's (`mine`) is handed over when a
+/// worker it prefers joins.
+async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Followed, Trouble> {
+    let key = &served.name;
+    let give_back =
+        |value: &'static str| lease::give_back(&shared.leases, key, holding.revision, value);
+    let started = shared.starting.acquire().await;
     let mut held = resume(shared, served).await?;
     let until_end = shared.settings.duration.is_none();
     if until_end && held.run.event_time().ended {
-        lease.release(&shared.leases).await;
+        give_back(lease::ENDED).await;
         return Ok(Followed::Ended);
     }
     view(shared, &served.name, |p| p.served = true);
     let subjects = Subjects::of(&served.name).map_err(|e| Trouble::Fatal(Failure::bad(e)))?;
-    let (name, _) = record::STREAMS[0];
-    let stream = shared
-        .js
-        .get_stream(name)
-        .await
-        .map_err(|e| format!("stream {name}: {e}"))?;
     let config = OrderedConfig {
-        filter_subject: subjects.events.clone(),
         deliver_policy: DeliverPolicy::ByStartSequence {
             start_sequence: held.run.seq + 1,
         },
         ..OrderedConfig::default()
     };
-    let consumer = stream
+    crate::jetstream::make_stream(&shared.js, &subjects.stream, &subjects.events).await?;
+    let consumer = shared
+        .js
+        .get_stream(&subjects.stream)
+        .await
+        .map_err(|e| format!("stream {}: {e}", subjects.stream))?
         .create_consumer(config)
         .await
         .map_err(|e| format!("consumer of {}: {e}", subjects.events))?;
@@ -527,7 +621,8 @@ async fn follow(
         .messages()
         .await
         .map_err(|e| format!("consumer of {}: {e}", subjects.events))?;
-    let mut renew = tokio::time::interval(lease::RENEW_EVERY);
+    drop(started);
+    let mut look = tokio::time::interval(LOOK_EVERY);
     let mut checkpoint = tokio::time::interval(shared.settings.checkpoint_every);
     let mut stop = shared.stop.clone();
     loop {
@@ -535,16 +630,16 @@ async fn follow(
             biased;
             () = stopped(&mut stop) => {
                 write_checkpoint(shared, served, &mut held).await?;
-                lease.release(&shared.leases).await;
+                give_back("").await;
                 return Ok(Followed::Stopped);
             }
-            _ = renew.tick() => {
-                if let Err(why) = lease.renew(&shared.leases).await {
+            _ = look.tick() => {
+                if let Some(why) = shared.lost(key) {
                     return Ok(Followed::LeaseLost(why));
                 }
-                if mine && !shared.mine(&served.name) {
+                if holding.mine && !shared.mine(key) {
                     write_checkpoint(shared, served, &mut held).await?;
-                    lease.release(&shared.leases).await;
+                    give_back("").await;
                     return Ok(Followed::HandedOver);
                 }
             }
@@ -561,14 +656,13 @@ async fn follow(
                     return Err(Trouble::Broker(format!("the consumer of {} ended", subjects.events)));
                 };
                 let message = message.map_err(|e| format!("consumer of {}: {e}", subjects.events))?;
-                if !lease.fresh() {
-                    return Ok(Followed::LeaseLost("the lease was not renewed in time".into()));
+                if let Some(why) = shared.lost(key) {
+                    return Ok(Followed::LeaseLost(why));
                 }
                 take(shared, served, &mut held, &message).await?;
                 if until_end && held.run.event_time().ended {
                     write_checkpoint(shared, served, &mut held).await?;
-                    lease.release(&shared.leases).await;
-                    view(shared, &served.name, |p| p.served = false);
+                    give_back(lease::ENDED).await;
                     return Ok(Followed::Ended);
                 }
             }
@@ -589,8 +683,8 @@ async fn take(
     let published_ns = info.published.unix_timestamp_nanos();
     let record = record::read(&message.payload, &served.plant).map_err(|e| {
         Trouble::Fatal(Failure::bad(format!(
-            "nats stream {}, message {seq}: {e}",
-            record::STREAMS[0].0
+            "nats stream GARDEFOU_EVENTS_{}, message {seq}: {e}",
+            served.name
         )))
     })?;
     if let Record::Start(_, _, Some(time)) = &record {
@@ -607,6 +701,9 @@ async fn take(
         let number = first + i as u64;
         if number <= held.published {
             continue;
+        }
+        if let Some(why) = shared.lost(&served.name) {
+            return Err(Trouble::Moved(why));
         }
         let line = fleet_line(v, held.time, &served.name, &served.version);
         publish_line(shared, &served.name, number, &line).await?;

@@ -162,6 +162,10 @@ async fn publish(
     mut rx: mpsc::UnboundedReceiver<Message>,
 ) -> Summary {
     let mut summary = Summary::default();
+    // Checked by `Publisher::start`.
+    let Ok(subjects) = Subjects::of(&settings.plant) else {
+        return summary;
+    };
     let mut outbox = Outbox::new(settings.outbox.clone(), IN_MEMORY, settings.outbox_bytes);
     let client = async_nats::ConnectOptions::new()
         .retry_on_initial_connect()
@@ -184,7 +188,7 @@ async fn publish(
     loop {
         open &= take(&mut rx, &mut outbox, &mut summary, &mut state);
         if !state.streams {
-            state.streams = make_streams(&js)
+            state.streams = make_streams(&js, &subjects)
                 .await
                 .map_err(|e| state.trouble(&e))
                 .is_ok();
@@ -345,22 +349,30 @@ async fn send(js: &jetstream::Context, ids: &str, m: &Message) -> Result<bool, S
     Ok(ack.duplicate)
 }
 
-/// Makes the streams that are missing.
-pub(crate) async fn make_streams(js: &jetstream::Context) -> Result<(), String> {
-    for (name, subjects) in STREAMS {
-        let config = stream::Config {
-            name: name.to_string(),
-            subjects: vec![subjects.to_string()],
-            storage: stream::StorageType::File,
-            retention: stream::RetentionPolicy::Limits,
-            duplicate_window: DUPLICATE_WINDOW,
-            // A fleet worker reads a plant's first message directly.
-            allow_direct: true,
-            ..stream::Config::default()
-        };
-        js.get_or_create_stream(config)
-            .await
-            .map_err(|e| format!("stream {name}: {e}"))?;
+/// Makes the streams that are missing: those every plant shares, and the
+/// events stream of the plant of `subjects` (a monitor, on its first
+/// connection; a fleet worker, as it takes a plant up).
+pub async fn make_streams(js: &jetstream::Context, subjects: &Subjects) -> Result<(), String> {
+    for (name, subject) in STREAMS {
+        make_stream(js, name, subject).await?;
     }
+    make_stream(js, &subjects.stream, &subjects.events).await
+}
+
+/// Makes the stream `name` of `subject`, if missing.
+pub async fn make_stream(js: &jetstream::Context, name: &str, subject: &str) -> Result<(), String> {
+    let config = stream::Config {
+        name: name.to_string(),
+        subjects: vec![subject.to_string()],
+        storage: stream::StorageType::File,
+        retention: stream::RetentionPolicy::Limits,
+        duplicate_window: DUPLICATE_WINDOW,
+        // A fleet worker reads a plant's last verdict line directly.
+        allow_direct: true,
+        ..stream::Config::default()
+    };
+    js.get_or_create_stream(config)
+        .await
+        .map_err(|e| format!("stream {name}: {e}"))?;
     Ok(())
 }

@@ -2,7 +2,7 @@
 //!
 //! | stream | subject | one message per | payload |
 //! |---|---|---|---|
-//! | `GARDEFOU_EVENTS` | `gardefou.events.PLANT` | what the source showed: the first values, a scan, a watermark, a lost plant, the end | JSON, below |
+//! | `GARDEFOU_EVENTS_PLANT` | `gardefou.events.PLANT` | what the source showed: the first values, a scan, a watermark, a lost plant, the end | JSON, below |
 //! | `GARDEFOU_VERDICTS` | `gardefou.verdicts.PLANT` | verdict line | the JSON line of SPEC §3, as `monitor` prints it |
 //! | `GARDEFOU_FLAGS` | `gardefou.flags.PLANT` | change of the flags written to the PLC | `{"t_ns":…,"up":["def_C4"]}` |
 //! | `GARDEFOU_FLEET` | `gardefou.fleet.FLEET.PLANT` | verdict line of a fleet worker ([`crate::fleet`]) | the line `fleet` prints, with `plant` and `model` fields; header `Gardefou-Line`: its number |
@@ -29,13 +29,19 @@ use serde_json::json;
 
 use crate::monitor::source::Item;
 
-/// The streams, and the subjects each takes.
-pub const STREAMS: [(&str, &str); 4] = [
-    ("GARDEFOU_EVENTS", "gardefou.events.>"),
+/// The streams every plant shares, and the subjects each takes. Each
+/// plant's events have a stream of their own ([`Subjects::stream`]): a
+/// consumer of one plant's events is then a consumer of a whole stream,
+/// which costs the server nothing per message of the other plants (a
+/// consumer filtered out of a stream of a thousand plants does).
+pub const STREAMS: [(&str, &str); 3] = [
     ("GARDEFOU_VERDICTS", "gardefou.verdicts.>"),
     ("GARDEFOU_FLAGS", "gardefou.flags.>"),
     ("GARDEFOU_FLEET", "gardefou.fleet.>"),
 ];
+
+/// The stream of fleet workers' verdict lines.
+pub const FLEET_STREAM: &str = STREAMS[2].0;
 
 /// Scan periods of the source's time between two watermarks published.
 pub const WATERMARK_SCANS: Time = 10;
@@ -43,6 +49,8 @@ pub const WATERMARK_SCANS: Time = 10;
 /// The subjects of one plant.
 #[derive(Debug, Clone)]
 pub struct Subjects {
+    /// `GARDEFOU_EVENTS_PLANT`: the stream of the plant's events.
+    pub stream: String,
     /// `gardefou.events.PLANT`.
     pub events: String,
     /// `gardefou.verdicts.PLANT`.
@@ -62,6 +70,7 @@ impl Subjects {
             ));
         }
         Ok(Subjects {
+            stream: format!("GARDEFOU_EVENTS_{name}"),
             events: format!("gardefou.events.{name}"),
             verdicts: format!("gardefou.verdicts.{name}"),
             flags: format!("gardefou.flags.{name}"),
