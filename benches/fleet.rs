@@ -117,6 +117,8 @@ struct Said {
     taken_up: Vec<Instant>,
     /// Plants taken up.
     served: usize,
+    /// Plants given up (handed over, lease lost).
+    given_up: usize,
 }
 
 fn spawn_worker(url: &str, names: &[String], plant: &Path, i: usize) -> (Child, Arc<Mutex<Said>>) {
@@ -150,6 +152,9 @@ fn spawn_worker(url: &str, names: &[String], plant: &Path, i: usize) -> (Child, 
             let mut s = s.lock().expect("said");
             if line.contains("served here from") {
                 s.served += 1;
+            }
+            if line.contains("handed over") || line.contains("no more lines from this worker") {
+                s.given_up += 1;
             }
             if line.contains("served here from the checkpoint") {
                 s.taken_up.push(Instant::now());
@@ -299,11 +304,17 @@ fn round(
     let serving = || {
         children
             .iter()
-            .map(|(_, s)| s.lock().expect("said").served)
+            .map(|(_, s)| {
+                let s = s.lock().expect("said");
+                s.served.saturating_sub(s.given_up)
+            })
             .sum::<usize>()
     };
-    while serving() < names.len() && started.elapsed() < Duration::from_secs(120) {
+    // ... and has been for a second.
+    let mut steady = 0;
+    while steady < 20 && started.elapsed() < Duration::from_secs(120) {
         std::thread::sleep(Duration::from_millis(50));
+        steady = if serving() == names.len() { steady + 1 } else { 0 };
     }
     let startup = started.elapsed().as_secs_f64();
     let t0 = Instant::now();

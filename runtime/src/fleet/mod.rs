@@ -62,7 +62,7 @@ const CONNECT_WAIT: Duration = Duration::from_secs(5);
 const RETRY_EVERY: Duration = Duration::from_millis(500);
 /// Plants taken up at once: a worker starting with a thousand plants makes
 /// their consumers a few at a time.
-const STARTING: usize = 16;
+const STARTING: usize = 64;
 /// The header with a fleet verdict line's number.
 pub const LINE_HEADER: &str = "Gardefou-Line";
 
@@ -257,9 +257,7 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
             changes_tx.send_modify(|n| *n += 1);
         }
     });
-    // Peers show within two renewals: only then is it known which plants
-    // prefer this worker.
-    tokio::time::sleep(lease::RENEW_EVERY * 2 + Duration::from_millis(100)).await;
+    settle(live.clone()).await;
     let stream = |name: &'static str| {
         let js = js.clone();
         async move {
@@ -325,6 +323,21 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
     match failures.into_iter().next() {
         Some(f) => Err(f),
         None => Ok(()),
+    }
+}
+
+/// Waits until the live workers have been the same for two renewals (at
+/// most [`lease::TTL`]): only then is it known which plants prefer this
+/// worker, and workers started together do not take each other's plants.
+async fn settle(mut live: watch::Receiver<Vec<String>>) {
+    let quiet = lease::RENEW_EVERY * 2 + Duration::from_millis(100);
+    let until = Instant::now() + lease::TTL;
+    while Instant::now() < until {
+        match tokio::time::timeout(quiet, live.changed()).await {
+            Err(_) if !live.borrow().is_empty() => return,
+            Ok(Err(_)) => return,
+            _ => {}
+        }
     }
 }
 
@@ -625,10 +638,14 @@ async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Fo
     let mut look = tokio::time::interval(LOOK_EVERY);
     let mut checkpoint = tokio::time::interval(shared.settings.checkpoint_every);
     let mut stop = shared.stop.clone();
+    // Checkpoints are written beside the reading: a write's round trip does
+    // not hold the plant's next message back.
+    let mut writing: Option<Writing> = None;
     loop {
         tokio::select! {
             biased;
             () = stopped(&mut stop) => {
+                settle_writing(&mut writing, shared, key, &mut held).await?;
                 write_checkpoint(shared, served, &mut held).await?;
                 give_back("").await;
                 return Ok(Followed::Stopped);
@@ -638,17 +655,27 @@ async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Fo
                     return Ok(Followed::LeaseLost(why));
                 }
                 if holding.mine && !shared.mine(key) {
+                    settle_writing(&mut writing, shared, key, &mut held).await?;
                     write_checkpoint(shared, served, &mut held).await?;
                     give_back("").await;
                     return Ok(Followed::HandedOver);
                 }
             }
-            _ = checkpoint.tick() => {
+            _ = checkpoint.tick(), if writing.is_none() => {
                 if held.run.seq != held.written {
-                    match write_checkpoint(shared, served, &mut held).await {
-                        Err(Trouble::Moved(why)) => return Ok(Followed::LeaseLost(why)),
-                        other => other?,
+                    writing = Some(Writing::start(shared, served, &held)?);
+                }
+            }
+            done = async { (&mut writing.as_mut().expect("a write under way").task).await }, if writing.is_some() => {
+                let seq = writing.take().map_or(0, |w| w.seq);
+                match done.map_err(|e| Trouble::Broker(format!("checkpoint: {e}")))? {
+                    Ok(revision) => {
+                        held.revision = Some(revision);
+                        held.written = seq;
+                        view(shared, key, |p| p.checkpointed());
                     }
+                    Err(Trouble::Moved(why)) => return Ok(Followed::LeaseLost(why)),
+                    Err(other) => return Err(other),
                 }
             }
             message = messages.next() => {
@@ -661,6 +688,7 @@ async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Fo
                 }
                 take(shared, served, &mut held, &message).await?;
                 if until_end && held.run.event_time().ended {
+                    settle_writing(&mut writing, shared, key, &mut held).await?;
                     write_checkpoint(shared, served, &mut held).await?;
                     give_back(lease::ENDED).await;
                     return Ok(Followed::Ended);
@@ -795,35 +823,92 @@ fn print(shared: &Shared, line: &str) -> Result<(), Trouble> {
         })
 }
 
+/// The plant's checkpoint now, as the bucket keeps it.
+fn checkpoint_bytes(served: &Served, held: &Held) -> Result<Vec<u8>, Trouble> {
+    let time = Some(record::time_name(held.time).to_string());
+    let c = held.run.checkpoint(&served.version, time);
+    serde_json::to_vec(&c).map_err(|e| Trouble::Fatal(Failure::Io(e.to_string())))
+}
+
+/// Stores a checkpoint of plant `key` over the entry at `revision` (`None`:
+/// none yet); its new revision. [`Trouble::Moved`] when the entry moved.
+async fn store_checkpoint(
+    bucket: kv::Store,
+    key: String,
+    bytes: Vec<u8>,
+    revision: Option<u64>,
+) -> Result<u64, Trouble> {
+    let moved = |why: String| Trouble::Moved(format!("its checkpoint moved ({why})"));
+    match revision {
+        Some(rev) => bucket
+            .update(&key, bytes.into(), rev)
+            .await
+            .map_err(|e| match e.kind() {
+                kv::UpdateErrorKind::WrongLastRevision => moved(e.to_string()),
+                _ => Trouble::Broker(format!("checkpoint: {e}")),
+            }),
+        None => bucket.create(&key, bytes.into()).await.map_err(|e| match e.kind() {
+            kv::CreateErrorKind::AlreadyExists => moved(e.to_string()),
+            _ => Trouble::Broker(format!("checkpoint: {e}")),
+        }),
+    }
+}
+
+/// A checkpoint on its way to the bucket, while the plant's messages go on
+/// being read: the sequence it holds.
+struct Writing {
+    task: tokio::task::JoinHandle<Result<u64, Trouble>>,
+    seq: u64,
+}
+
+impl Writing {
+    /// Starts writing the plant's checkpoint now.
+    fn start(shared: &Shared, served: &Served, held: &Held) -> Result<Writing, Trouble> {
+        let bytes = checkpoint_bytes(served, held)?;
+        let task = tokio::spawn(store_checkpoint(
+            shared.checkpoints.clone(),
+            served.name.clone(),
+            bytes,
+            held.revision,
+        ));
+        Ok(Writing { task, seq: held.run.seq })
+    }
+
+    /// Waits for the write, and notes its revision.
+    async fn finish(self, shared: &Shared, key: &str, held: &mut Held) -> Result<(), Trouble> {
+        let revision = self
+            .task
+            .await
+            .map_err(|e| Trouble::Broker(format!("checkpoint: {e}")))??;
+        held.revision = Some(revision);
+        held.written = self.seq;
+        view(shared, key, |p| p.checkpointed());
+        Ok(())
+    }
+}
+
+/// Waits for the checkpoint being written, if any.
+async fn settle_writing(
+    writing: &mut Option<Writing>,
+    shared: &Shared,
+    key: &str,
+    held: &mut Held,
+) -> Result<(), Trouble> {
+    match writing.take() {
+        Some(w) => w.finish(shared, key, held).await,
+        None => Ok(()),
+    }
+}
+
 /// Writes the plant's checkpoint, if the revision is still the one read.
 async fn write_checkpoint(
     shared: &Shared,
     served: &Served,
     held: &mut Held,
 ) -> Result<(), Trouble> {
-    let time = Some(record::time_name(held.time).to_string());
-    let c = held.run.checkpoint(&served.version, time);
-    let bytes = serde_json::to_vec(&c).map_err(|e| Trouble::Fatal(Failure::Io(e.to_string())))?;
+    let bytes = checkpoint_bytes(served, held)?;
     let key = &served.name;
-    let moved = |why: String| Trouble::Moved(format!("its checkpoint moved ({why})"));
-    let revision = match held.revision {
-        Some(rev) => shared
-            .checkpoints
-            .update(key, bytes.into(), rev)
-            .await
-            .map_err(|e| match e.kind() {
-                kv::UpdateErrorKind::WrongLastRevision => moved(e.to_string()),
-                _ => Trouble::Broker(format!("checkpoint: {e}")),
-            }),
-        None => shared
-            .checkpoints
-            .create(key, bytes.into())
-            .await
-            .map_err(|e| match e.kind() {
-                kv::CreateErrorKind::AlreadyExists => moved(e.to_string()),
-                _ => Trouble::Broker(format!("checkpoint: {e}")),
-            }),
-    }?;
+    let revision = store_checkpoint(shared.checkpoints.clone(), key.clone(), bytes, held.revision).await?;
     held.revision = Some(revision);
     held.written = held.run.seq;
     view(shared, key, |p| p.checkpointed());
