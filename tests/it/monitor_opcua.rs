@@ -428,3 +428,79 @@ fn a_flag_found_up_on_the_server_stays_up() {
         server.out
     );
 }
+
+/// A URL that is not `opc.tcp://HOST:PORT`, or a plant file whose `[opcua]`
+/// table is wrong, is bad input: one line, exit code 2, before any
+/// connection.
+#[test]
+fn bad_urls_and_node_ids_are_one_line_errors() {
+    let o = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(["monitor", "--plant", &path(PLANT), "--model", &path(MODEL)])
+        .args(["--opcua", "plc.example:4840"])
+        .output()
+        .expect("runs");
+    crate::support::assert_bad_input(
+        &o,
+        "--opcua: 'plc.example:4840': expected opc.tcp://HOST:PORT",
+    );
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plant = dir.path().join("plant.toml");
+    let mut text = std::fs::read_to_string(path(PLANT)).expect("reads the plant file");
+    text.push_str("\n[opcua]\nC4 = \"ns=2;q=Line.C4\"\n");
+    std::fs::write(&plant, &text).expect("writes");
+    let line = text.lines().count();
+    let o = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args([
+            "monitor",
+            "--plant",
+            &plant.display().to_string(),
+            "--model",
+            &path(MODEL),
+        ])
+        .args(["--opcua", "opc.tcp://127.0.0.1:1"])
+        .output()
+        .expect("runs");
+    crate::support::assert_bad_input(
+        &o,
+        &format!(
+            "plant.toml:{line}:6: field 'opcua': 'C4': 'ns=2;q=Line.C4' is not a NodeId (unknown identifier type 'q=')"
+        ),
+    );
+}
+
+/// A signal the server has no variable for (C4 renamed, and not mapped)
+/// stops the monitor with a one-line error naming it, exit code 2.
+#[test]
+fn a_signal_missing_on_the_server_is_bad_input() {
+    let _serial = serial();
+    let Some(python) = python() else {
+        return;
+    };
+    let port = free_port();
+    let mut server = server(&python, port, &[]);
+    assert!(
+        server.wait_for("\"serving\"", Duration::from_secs(20)),
+        "the server did not start: {:?}",
+        server.err
+    );
+    // The F2 plant file as shipped: no [opcua] table, so C4 is looked for
+    // by its name, which the server does not use.
+    let o = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(["monitor", "--plant", &path(PLANT), "--model", &path(MODEL)])
+        .args([
+            "--opcua",
+            &format!("opc.tcp://127.0.0.1:{port}"),
+            "--duration",
+            "20s",
+        ])
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let last = err.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("gardefou: opcua opc.tcp://127.0.0.1:")
+            && last.contains("no variable for signal C4, A4: a signal is the variable of its name up to 4 levels below the Objects folder"),
+        "{err}"
+    );
+}

@@ -109,14 +109,22 @@ pub fn parse_url(url: &str) -> Result<String, String> {
         ));
     };
     let (authority, path) = rest.split_once('/').unwrap_or((rest, ""));
-    let (host, port) = match authority.rsplit_once(':') {
-        Some((h, p)) if !h.ends_with(']') || authority.starts_with('[') => {
-            let port: u16 = p
-                .parse()
-                .map_err(|_| format!("'{url}': port '{p}' is not a number from 1 to 65535"))?;
-            (h, port)
-        }
-        _ => (authority, 4840),
+    let port = |p: &str| {
+        p.parse::<u16>()
+            .map_err(|_| format!("'{url}': port '{p}' is not a number from 1 to 65535"))
+    };
+    // An IPv6 address is written in brackets, its colons inside them.
+    let (host, port) = match authority.strip_prefix('[').map(|r| r.split_once(']')) {
+        Some(Some((h, ""))) => (format!("[{h}]"), 4840),
+        Some(Some((h, after))) => match after.strip_prefix(':') {
+            Some(p) => (format!("[{h}]"), port(p)?),
+            None => return Err(format!("'{url}': expected opc.tcp://HOST:PORT")),
+        },
+        Some(None) => return Err(format!("'{url}': no ']' after the IPv6 address")),
+        None => match authority.rsplit_once(':') {
+            Some((h, p)) => (h.to_string(), port(p)?),
+            None => (authority.to_string(), 4840),
+        },
     };
     if host.is_empty() || host == "[]" || port == 0 {
         return Err(format!("'{url}': expected opc.tcp://HOST:PORT"));
@@ -856,4 +864,72 @@ async fn deliver(link: &Link, out: &mut Vec<Item>) -> bool {
         }
     }
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_are_read_with_their_port() {
+        assert_eq!(
+            parse_url("opc.tcp://127.0.0.1:4841"),
+            Ok("opc.tcp://127.0.0.1:4841/".into())
+        );
+        assert_eq!(parse_url("opc.tcp://plc"), Ok("opc.tcp://plc:4840/".into()));
+        assert_eq!(
+            parse_url("opc.tcp://[::1]:4840/UA/Line"),
+            Ok("opc.tcp://[::1]:4840/UA/Line".into())
+        );
+        assert_eq!(
+            parse_url("opc.tcp://[::1]"),
+            Ok("opc.tcp://[::1]:4840/".into())
+        );
+        for (bad, why) in [
+            ("plc:4840", "expected opc.tcp://"),
+            ("opc.https://plc:443", "expected opc.tcp://"),
+            ("opc.tcp://plc:http", "port 'http'"),
+            ("opc.tcp://:4840", "expected opc.tcp://HOST:PORT"),
+            ("opc.tcp://plc:0", "expected opc.tcp://HOST:PORT"),
+        ] {
+            let m = parse_url(bad).expect_err(bad);
+            assert!(m.contains(why), "{bad}: {m}");
+        }
+    }
+
+    #[test]
+    fn node_ids_by_namespace_uri_are_looked_up() {
+        let namespaces = [
+            "http://opcfoundation.org/UA/".to_string(),
+            "urn:line".into(),
+        ];
+        assert_eq!(
+            node_id("nsu=urn:line;s=Line.C4", &namespaces),
+            Ok(NodeId::new(1, "Line.C4"))
+        );
+        assert_eq!(node_id("ns=3;i=1042", &[]), Ok(NodeId::new(3, 1042u32)));
+        assert!(
+            node_id("nsu=urn:other;s=C4", &namespaces)
+                .unwrap_err()
+                .contains("no namespace urn:other")
+        );
+    }
+
+    #[test]
+    fn the_publishing_interval_is_half_the_lateness_in_wall_time() {
+        let ms = diagnoser::MS;
+        assert_eq!(
+            publishing_interval(100 * ms, 1.0),
+            Duration::from_millis(50)
+        );
+        assert_eq!(
+            publishing_interval(500 * ms, 5.0),
+            Duration::from_millis(50)
+        );
+        assert_eq!(publishing_interval(0, 1.0), Duration::from_millis(10));
+        assert_eq!(
+            publishing_interval(60_000 * ms, 1.0),
+            Duration::from_secs(1)
+        );
+    }
 }

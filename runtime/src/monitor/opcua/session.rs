@@ -30,8 +30,8 @@
 //! stamped far ahead of the clock (a thousand scans, or ten seconds of it)
 //! would fire every deadline in between: a warning and a lost plant.
 //!
-//! **Losses.** Notification messages carry sequence numbers, one more for
-//! each message with data; a keep-alive carries the next one. A number that
+//! **Losses.** Notification messages carry sequence numbers, from 1, one more
+//! for each message with data; a keep-alive carries the next one. A number that
 //! does not follow means a message was lost: the plant was not seen whole. So
 //! does a value whose status is not good (or whose queue overflowed), a change
 //! without a SourceTimestamp, a subscription whose status changed, or the
@@ -206,7 +206,9 @@ impl Session {
             self.present = present;
         }
         self.open = true;
-        self.expect = None;
+        // A subscription's first message carries number 1 (Part 4, 5.13.1.1):
+        // a first message lost is a gap too.
+        self.expect = Some(1);
         self.held.clear();
         self.written = None;
         self.in_flight = None;
@@ -618,4 +620,473 @@ impl Session {
 /// largest.
 fn next_seq(seq: u32) -> u32 {
     if seq == u32::MAX { 1 } else { seq + 1 }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use proptest::prelude::*;
+
+    use super::*;
+
+    const MS: Time = 1_000_000;
+    const LATENESS: Time = 50 * MS;
+
+    fn plant() -> Plant {
+        let p =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../datasets/data/sorting/F2/plant.toml");
+        Plant::from_path(&p).expect("plant")
+    }
+
+    fn session(plant: &Plant) -> Session {
+        Session::new(plant, "opc.tcp://plc:4840/", 1.0, LATENESS)
+    }
+
+    fn at_ms(value: bool, t: Time) -> Reading {
+        Reading {
+            value: Value::Bool(value),
+            t: Some(t * MS),
+        }
+    }
+
+    /// An open session started from every signal down at `t0` ms (the last
+    /// one stamped then, the others earlier), every flag down; the first
+    /// notification is due with sequence number 1.
+    fn started(s: &mut Session, plant: &Plant, t0: Time, at: Instant) -> (Vec<Item>, Vec<Command>) {
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        s.opened(vec![true; plant.flags().len()], &mut out);
+        let n = plant.signals.len();
+        let signals: Vec<Reading> = (0..n)
+            .map(|k| at_ms(false, if k + 1 == n { t0 } else { t0 - 100 }))
+            .collect();
+        let flags = vec![Some(at_ms(false, 0)); plant.flags().len()];
+        s.read(&signals, &flags, at, &mut out, &mut send);
+        (out, send)
+    }
+
+    fn data(seq: u32, changes: Vec<(usize, Reading)>) -> Notice {
+        Notice {
+            seq,
+            keep_alive: false,
+            changes,
+            status: None,
+        }
+    }
+
+    fn keep_alive(seq: u32) -> Notice {
+        Notice {
+            seq,
+            keep_alive: true,
+            changes: Vec::new(),
+            status: None,
+        }
+    }
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    #[test]
+    fn a_read_starts_the_plant_at_its_latest_timestamp_and_rewrites_the_flags() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let (out, send) = started(&mut s, &plant, 1_000, Instant::now());
+        assert!(
+            matches!(out.as_slice(), [Item::Start(t, v)] if *t == 1_000 * MS && v.iter().all(|x| !x)),
+            "{out:?}"
+        );
+        let [Command::Write(flags)] = send.as_slice() else {
+            panic!("{send:?}");
+        };
+        assert_eq!(flags.len(), plant.flags().len());
+        assert!(flags.iter().all(|(_, up)| !up));
+    }
+
+    #[test]
+    fn changes_are_scans_once_the_watermark_has_passed_them() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let at = Instant::now();
+        started(&mut s, &plant, 1_000, at);
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        // A change 10 ms after the start, arriving at once: the clock is at
+        // its time, and the watermark lateness behind it.
+        s.notice(
+            data(1, vec![(3, at_ms(true, 1_010))]),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(out.is_empty(), "{out:?}");
+        // A keep-alive 60 ms later: the clock at 1 070 ms, the watermark at
+        // 1 020 ms, past the change.
+        s.notice(keep_alive(2), at + ms(60), &mut out, &mut send);
+        match out.as_slice() {
+            [Item::Scan(scan), Item::Watermark(w)] => {
+                let got: Vec<(Time, usize, bool)> = scan
+                    .iter()
+                    .map(|e| (e.t, e.signal.index(), e.value))
+                    .collect();
+                assert_eq!(got, [(1_010 * MS, 3, true)]);
+                assert_eq!(*w, 1_020 * MS);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(send.is_empty(), "{send:?}");
+    }
+
+    #[test]
+    fn a_repeat_behind_the_watermark_is_dropped_and_a_change_there_is_late() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let at = Instant::now();
+        started(&mut s, &plant, 1_000, at);
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        // Each monitored item's first notification repeats the value read.
+        let first = (0..plant.signals.len())
+            .map(|k| (k, at_ms(false, 900)))
+            .collect();
+        s.notice(data(1, first), at, &mut out, &mut send);
+        assert!(out.is_empty(), "{out:?}");
+        s.notice(
+            data(2, vec![(0, at_ms(true, 990))]),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(
+            matches!(out.as_slice(), [Item::Late(m)] if m.contains("C0 at 990 is behind the watermark 1000")),
+            "{out:?}"
+        );
+        assert!(send.is_empty());
+    }
+
+    #[test]
+    fn a_lost_message_loses_the_plant_and_reopens_the_connection() {
+        let plant = plant();
+        let at = Instant::now();
+        for skipped in [data(3, vec![(0, at_ms(true, 1_010))]), keep_alive(3)] {
+            let mut s = session(&plant);
+            started(&mut s, &plant, 1_000, at);
+            let (mut out, mut send) = (Vec::new(), Vec::new());
+            s.notice(
+                data(1, vec![(0, at_ms(true, 1_005))]),
+                at,
+                &mut out,
+                &mut send,
+            );
+            s.notice(skipped, at, &mut out, &mut send);
+            assert!(
+                matches!(out.as_slice(), [Item::Lost(t, m)] if *t == 1_000 * MS && m.contains("message 3 where 2 was due")),
+                "{out:?}"
+            );
+            assert_eq!(send, [Command::Reopen]);
+            // Nothing more from this subscription counts.
+            out.clear();
+            s.notice(keep_alive(4), at + ms(500), &mut out, &mut send);
+            assert!(out.is_empty(), "{out:?}");
+        }
+    }
+
+    #[test]
+    fn a_bad_value_or_a_status_change_loses_the_plant() {
+        let plant = plant();
+        let at = Instant::now();
+        let bad = Reading {
+            value: Value::Bad("BadCommunicationError".into()),
+            t: Some(1_010 * MS),
+        };
+        let mut status = keep_alive(1);
+        status.status = Some("BadTimeout".into());
+        for (notice, why) in [
+            (data(1, vec![(4, bad)]), "C4 is BadCommunicationError"),
+            (status, "status changed to BadTimeout"),
+            (
+                data(
+                    1,
+                    vec![(
+                        4,
+                        Reading {
+                            value: Value::Bool(true),
+                            t: None,
+                        },
+                    )],
+                ),
+                "C4 changed without a SourceTimestamp",
+            ),
+        ] {
+            let mut s = session(&plant);
+            started(&mut s, &plant, 1_000, at);
+            let (mut out, mut send) = (Vec::new(), Vec::new());
+            s.notice(notice, at, &mut out, &mut send);
+            assert!(
+                matches!(out.as_slice(), [Item::Lost(_, m)] if m.contains(why)),
+                "{why}: {out:?}"
+            );
+            assert_eq!(send, [Command::Reopen]);
+        }
+    }
+
+    #[test]
+    fn a_signal_of_another_type_or_without_timestamp_is_a_misfit() {
+        let plant = plant();
+        let n = plant.signals.len();
+        for (reading, why) in [
+            (
+                Reading {
+                    value: Value::Other("Int16".into()),
+                    t: Some(5 * MS),
+                },
+                "C2 is not a Boolean but Int16",
+            ),
+            (
+                Reading {
+                    value: Value::Bool(false),
+                    t: None,
+                },
+                "C2 has no SourceTimestamp",
+            ),
+        ] {
+            let mut s = session(&plant);
+            let (mut out, mut send) = (Vec::new(), Vec::new());
+            s.opened(vec![true; plant.flags().len()], &mut out);
+            let mut signals = vec![at_ms(false, 5); n];
+            signals[2] = reading;
+            s.read(&signals, &[], Instant::now(), &mut out, &mut send);
+            let Some(Item::Fatal(Failure::BadInput(m))) = out.last() else {
+                panic!("{out:?}");
+            };
+            assert!(
+                m.starts_with("opcua opc.tcp://plc:4840/: ") && m.contains(why),
+                "{m}"
+            );
+        }
+    }
+
+    #[test]
+    fn notifications_before_the_read_are_held_until_the_start() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let at = Instant::now();
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        s.opened(vec![true; plant.flags().len()], &mut out);
+        // C0 changes after the read's values were taken: its notification
+        // comes before the read's answer.
+        s.notice(
+            data(1, vec![(0, at_ms(true, 1_020))]),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(out.is_empty());
+        let signals = vec![at_ms(false, 1_000); plant.signals.len()];
+        s.read(&signals, &[], at + ms(100), &mut out, &mut send);
+        assert!(
+            matches!(out.as_slice(), [Item::Start(t, _)] if *t == 1_000 * MS),
+            "{out:?}"
+        );
+        // Released once a message shows the watermark past it.
+        s.notice(keep_alive(2), at + ms(200), &mut out, &mut send);
+        assert!(
+            out.iter()
+                .any(|i| matches!(i, Item::Scan(e) if e[0].t == 1_020 * MS && e[0].value)),
+            "{out:?}"
+        );
+    }
+
+    #[test]
+    fn a_change_far_ahead_loses_the_plant_but_not_the_first_after_a_start() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let at = Instant::now();
+        started(&mut s, &plant, 1_000, at);
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        // The plant was quiet for an hour before the read: its first change
+        // sets the clock.
+        let hour = 3_600_000;
+        s.notice(
+            data(1, vec![(0, at_ms(true, 1_000 + hour))]),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(
+            !out.iter()
+                .any(|i| matches!(i, Item::Lost(..) | Item::FarAhead(_))),
+            "{out:?}"
+        );
+        s.notice(
+            data(2, vec![(1, at_ms(true, 1_000 + 2 * hour))]),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(
+            matches!(out.as_slice(), [.., Item::FarAhead(_), Item::Lost(..)]),
+            "{out:?}"
+        );
+        assert_eq!(send, [Command::Reopen]);
+    }
+
+    #[test]
+    fn flags_are_written_whole_and_again_after_a_refusal() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let at = Instant::now();
+        let (_, mut send) = started(&mut s, &plant, 1_000, at);
+        let (mut out, mut more) = (Vec::new(), Vec::new());
+        // The start's write is answered: nothing was up, nothing to say.
+        s.written(Ok(()), at, &mut out, &mut more);
+        assert!(out.is_empty() && more.is_empty(), "{out:?} {more:?}");
+        send.clear();
+        let mut image = vec![false; plant.flags().len()];
+        image[0] = true;
+        s.flags(&image, at, &mut send);
+        let [Command::Write(w)] = send.as_slice() else {
+            panic!("{send:?}");
+        };
+        assert_eq!(w.len(), image.len());
+        assert_eq!(w[0], (0, true));
+        // Refused: a warning, and again after RESEND, not before.
+        send.clear();
+        s.written(
+            Err("def_C4: BadUserAccessDenied".into()),
+            at,
+            &mut out,
+            &mut send,
+        );
+        assert!(matches!(out.as_slice(), [Item::Warning(m)] if m.contains("BadUserAccessDenied")));
+        assert!(send.is_empty());
+        s.tick(at + RESEND / 2, &mut send);
+        assert!(send.is_empty());
+        s.tick(at + RESEND, &mut send);
+        assert_eq!(send.len(), 1);
+        out.clear();
+        s.written(Ok(()), at + RESEND, &mut out, &mut send);
+        let name = plant.flags()[0].to_string();
+        assert!(
+            matches!(out.as_slice(), [Item::FlagsWritten(up)] if *up == vec![name.clone()]),
+            "{out:?}"
+        );
+        // Written: nothing more to write.
+        send.clear();
+        s.tick(at + RESEND * 3, &mut send);
+        assert!(send.is_empty(), "{send:?}");
+    }
+
+    #[test]
+    fn a_def_flag_read_up_is_kept_up() {
+        let plant = plant();
+        let mut s = session(&plant);
+        let (mut out, mut send) = (Vec::new(), Vec::new());
+        s.opened(vec![true; plant.flags().len()], &mut out);
+        let signals = vec![at_ms(false, 5); plant.signals.len()];
+        let mut flags = vec![Some(at_ms(false, 0)); plant.flags().len()];
+        flags[2] = Some(at_ms(true, 0));
+        s.read(&signals, &flags, Instant::now(), &mut out, &mut send);
+        let name = plant.flags()[2].to_string();
+        assert!(
+            out.iter()
+                .any(|i| matches!(i, Item::FoundRaised(f) if *f == vec![name.clone()])),
+            "{out:?}"
+        );
+        let [Command::Write(w)] = send.as_slice() else {
+            panic!("{send:?}");
+        };
+        assert!(w.contains(&(2, true)), "{w:?}");
+    }
+
+    proptest! {
+        /// Any run of changes, in notification messages and keep-alives that
+        /// arrive on the source's time (speed 1), some changes spread over
+        /// two messages: the scans are the changes, each at its time, in
+        /// plant-file order, repeats dropped; watermarks only grow, and no
+        /// scan comes at or behind one already sent. A skipped sequence
+        /// number is one loss, after which nothing goes out.
+        #[test]
+        fn notifications_in_sequence_are_the_scans(
+            steps in proptest::collection::vec(
+                (1i64..80, proptest::collection::vec((0usize..18, any::<bool>()), 0..4), any::<bool>()),
+                1..40,
+            ),
+            gap in proptest::option::of(0usize..40),
+        ) {
+            let plant = plant();
+            let n = plant.signals.len();
+            let mut s = session(&plant);
+            let base = Instant::now();
+            let t0: Time = 1_000;
+            started(&mut s, &plant, t0, base);
+            let (mut out, mut send) = (Vec::new(), Vec::new());
+            let mut values = vec![false; n];
+            let mut expected: Vec<Vec<(Time, usize, bool)>> = Vec::new();
+            let (mut t, mut seq) = (t0, 1u32);
+            let mut lost = false;
+            let arrive = |t: Time| base + Duration::from_millis((t - t0) as u64);
+            for (k, (dt, changes, split)) in steps.iter().enumerate() {
+                t += dt;
+                if gap == Some(k) {
+                    seq += 1;
+                    lost = true;
+                }
+                let changes: Vec<(usize, Reading)> =
+                    changes.iter().map(|&(i, v)| (i % n, at_ms(v, t))).collect();
+                // A server may publish the changes of one time in two messages.
+                let cut = if *split { changes.len() / 2 } else { changes.len() };
+                for part in [&changes[..cut], &changes[cut..]] {
+                    if part.is_empty() {
+                        s.notice(keep_alive(seq), arrive(t), &mut out, &mut send);
+                    } else {
+                        s.notice(data(seq, part.to_vec()), arrive(t), &mut out, &mut send);
+                        seq += 1;
+                    }
+                }
+                if !lost {
+                    let mut scan: Vec<(Time, usize, bool)> = Vec::new();
+                    for (i, r) in &changes {
+                        let Value::Bool(v) = r.value else { unreachable!() };
+                        match scan.iter_mut().find(|e| e.1 == *i) {
+                            Some(e) => e.2 = v,
+                            None => scan.push((t * MS, *i, v)),
+                        }
+                    }
+                    scan.sort_by_key(|e| e.1);
+                    scan.retain(|e| values[e.1] != e.2);
+                    for e in &scan {
+                        values[e.1] = e.2;
+                    }
+                    if !scan.is_empty() {
+                        expected.push(scan);
+                    }
+                }
+            }
+            // A keep-alive well after the end releases every scan left.
+            s.notice(keep_alive(seq), arrive(t + 1_000), &mut out, &mut send);
+            let scans: Vec<Vec<(Time, usize, bool)>> = out
+                .iter()
+                .filter_map(|i| match i {
+                    Item::Scan(e) => Some(e.iter().map(|e| (e.t, e.signal.index(), e.value)).collect()),
+                    _ => None,
+                })
+                .collect();
+            let losses = out.iter().filter(|i| matches!(i, Item::Lost(..))).count();
+            prop_assert_eq!(losses, usize::from(lost));
+            prop_assert_eq!(send.contains(&Command::Reopen), lost);
+            if !lost {
+                prop_assert_eq!(scans, expected);
+            }
+            let mut last: Option<Time> = None;
+            for i in &out {
+                match i {
+                    Item::Watermark(w) => {
+                        prop_assert!(last.is_none_or(|l| *w > l));
+                        last = Some(*w);
+                    }
+                    Item::Scan(e) => prop_assert!(last.is_none_or(|l| e[0].t > l)),
+                    _ => {}
+                }
+            }
+        }
+    }
 }
