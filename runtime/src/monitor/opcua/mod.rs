@@ -72,6 +72,8 @@ const QUEUE_SIZE: u32 = 256;
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long to wait for the server to close a session on the way out.
 const CLOSE_WAIT: Duration = Duration::from_secs(1);
+/// How long a connection may take to open, a session to be activated.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// An OPC UA server's variables, through a subscription.
 pub struct OpcuaSource {
@@ -152,7 +154,6 @@ enum Ended {
 
 /// Follows the server until the monitor goes.
 async fn run(source: OpcuaSource, mut link: Link) {
-    let mut out = Vec::new();
     let mut client = match client() {
         Ok(c) => c,
         Err(e) => {
@@ -161,24 +162,12 @@ async fn run(source: OpcuaSource, mut link: Link) {
         }
     };
     let mut session = Session::new(&source.plant, &source.url, source.speed, source.lateness);
-    let mut told_unreachable = false;
+    // Whether the outage under way was said: one warning each.
+    let mut told = false;
     loop {
-        match connection(
-            &source,
-            &mut client,
-            &mut session,
-            &mut link,
-            &mut told_unreachable,
-        )
-        .await
-        {
+        match connection(&source, &mut client, &mut session, &mut link, &mut told).await {
             Ended::Stop => return,
-            Ended::Again => {
-                if !deliver(&link, &mut out).await {
-                    return;
-                }
-                tokio::time::sleep(RECONNECT_EVERY).await;
-            }
+            Ended::Again => tokio::time::sleep(RECONNECT_EVERY).await,
         }
     }
 }
@@ -233,7 +222,7 @@ async fn connection(
     client: &mut Client,
     session: &mut Session,
     link: &mut Link,
-    told_unreachable: &mut bool,
+    told: &mut bool,
 ) -> Ended {
     let url = source.url.as_str();
     let mut out = Vec::new();
@@ -265,13 +254,12 @@ async fn connection(
             }
         }
     }));
-    match connected(&mut polls).await {
-        Ok(()) => {
-            *told_unreachable = false;
-            eprintln!("monitor: opcua: connected to {url}");
-        }
+    let activated = tokio::time::timeout(CONNECT_TIMEOUT, connected(&mut polls)).await;
+    match activated.unwrap_or_else(|_| Err(format!("no answer in {} s", CONNECT_TIMEOUT.as_secs())))
+    {
+        Ok(()) => {}
         Err(why) => {
-            if !std::mem::replace(told_unreachable, true) {
+            if !std::mem::replace(told, true) {
                 out.push(Item::Warning(format!(
                     "opcua {url}: cannot reach the server ({why}); trying again every {} s",
                     RECONNECT_EVERY.as_secs()
@@ -288,6 +276,13 @@ async fn connection(
     let opened = open(source, &ua, session, notices_tx, &mut out).await;
     let ended = match opened {
         Ok((nodes, send)) => {
+            *told = false;
+            eprintln!(
+                "monitor: opcua: connected to {url}: {} signals subscribed, {} of {} flags writable",
+                nodes.signals.len(),
+                nodes.flags.iter().flatten().count(),
+                nodes.flags.len()
+            );
             let follower = Follower {
                 source,
                 ua: &ua,
@@ -301,9 +296,22 @@ async fn connection(
             let _ = deliver(link, &mut out).await;
             Ended::Stop
         }
+        Err(Opening::Unreadable) => {
+            if deliver(link, &mut out).await {
+                Ended::Again
+            } else {
+                Ended::Stop
+            }
+        }
         Err(Opening::Failed(why)) => {
             session.disconnected(&why, &mut out);
-            out.push(Item::Warning(format!("opcua {url}: {why}; trying again")));
+            // Once per outage: the next attempts say nothing new.
+            if !std::mem::replace(told, true) {
+                out.push(Item::Warning(format!(
+                    "opcua {url}: {why}; trying again every {} s",
+                    RECONNECT_EVERY.as_secs()
+                )));
+            }
             if deliver(link, &mut out).await {
                 Ended::Again
             } else {
@@ -333,6 +341,8 @@ enum Opening {
     Misfit(String),
     /// A request failed: try again.
     Failed(String),
+    /// The plant could not be read whole (the session said why): try again.
+    Unreadable,
 }
 
 /// The variables of one connection, once found.
@@ -451,7 +461,7 @@ async fn open(
     let mut send = Vec::new();
     session.read(&signals, &flags, now(), out, &mut send);
     if send.contains(&Command::Reopen) {
-        return Err(Opening::Failed("the plant could not be read whole".into()));
+        return Err(Opening::Unreadable);
     }
     Ok((nodes, send))
 }
