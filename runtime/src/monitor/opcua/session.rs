@@ -14,7 +14,7 @@
 //! ([`Item::FoundRaised`]).
 //!
 //! **Event time.** A change counts at its SourceTimestamp; changes at one time
-//! are one scan. The source's clock is anchored at the latest SourceTimestamp
+//! are one scan, in plant-file order. The source's clock is anchored at the latest SourceTimestamp
 //! and the instant its notification arrived, and runs `speed` times the wall
 //! clock from there. The read's values say when they last changed, not what
 //! the time is now, so a Start anchors the clock from below: the first change
