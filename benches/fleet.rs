@@ -314,7 +314,11 @@ fn round(
     let mut steady = 0;
     while steady < 20 && started.elapsed() < Duration::from_secs(120) {
         std::thread::sleep(Duration::from_millis(50));
-        steady = if serving() == names.len() { steady + 1 } else { 0 };
+        steady = if serving() == names.len() {
+            steady + 1
+        } else {
+            0
+        };
     }
     let startup = started.elapsed().as_secs_f64();
     let t0 = Instant::now();

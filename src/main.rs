@@ -38,7 +38,8 @@ enum Command {
     /// Structured Text, and logs checked against the constraints.
     Filter(filter::FilterArgs),
     /// Diagnose online: events from a live source, deadlines fired on time.
-    Monitor(monitor::MonitorArgs),
+    // Boxed: its many sources' arguments make it several times the others.
+    Monitor(Box<monitor::MonitorArgs>),
     /// Diagnose a plant out of its NATS JetStream stream (as `monitor --nats`
     /// published it), with no PLC attached.
     Fleet(fleet::FleetArgs),
@@ -64,7 +65,7 @@ fn run(command: Command) -> Result<(), Failure> {
         Command::Check(args) => check::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Filter(args) => filter::run(args),
-        Command::Monitor(args) => monitor::run(args),
+        Command::Monitor(args) => monitor::run(*args),
         Command::Fleet(args) => fleet::run(args),
         Command::Report(args) => report::run(args),
     }

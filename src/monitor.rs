@@ -16,7 +16,7 @@ use runtime::monitor::{Config, SourceConfig};
 
 /// Arguments of `gardefou monitor`.
 #[derive(Debug, Args)]
-#[command(group(clap::ArgGroup::new("source").required(true).args(["modbus", "can", "mqtt", "replay", "stdin"])))]
+#[command(group(clap::ArgGroup::new("source").required(true).args(["modbus", "can", "mqtt", "opcua", "replay", "stdin"])))]
 pub struct MonitorArgs {
     /// Plant file: signals, parts, faults, partitions and the register map.
     #[arg(long)]
@@ -42,6 +42,13 @@ pub struct MonitorArgs {
     /// one of its devices: `GROUP/EDGE` or `GROUP/EDGE/DEVICE`.
     #[arg(long, value_name = "GROUP/EDGE[/DEVICE]", requires = "mqtt")]
     sparkplug: Option<String>,
+    /// Subscribe to the variables of an OPC UA server
+    /// (`opc.tcp://HOST:PORT`): each signal is the variable the plant file's
+    /// `[opcua]` table names by NodeId, or the one of its browse name below
+    /// the Objects folder. Times are the values' SourceTimestamps; the flags
+    /// are written back to their variables. Security policy None.
+    #[arg(long, value_name = "URL")]
+    opcua: Option<String>,
     /// Replay a log (any form) at its recorded pace, times `--speed`.
     #[arg(long, value_name = "LOG")]
     replay: Option<PathBuf>,
@@ -53,9 +60,10 @@ pub struct MonitorArgs {
     #[arg(long)]
     stdin: bool,
     /// How late (in the source's time) a line on standard input may come
-    /// after a later one, or a Sparkplug B message after the time its node's
-    /// last one says; later than that, it is a warning and ignored (default:
-    /// 0ms on standard input, 100ms over Sparkplug B).
+    /// after a later one, a Sparkplug B message after the time its node's
+    /// last one says, or an OPC UA change after its SourceTimestamp; later
+    /// than that, it is a warning and ignored (default: 0ms on standard
+    /// input, 100ms over Sparkplug B and OPC UA).
     #[arg(long, value_parser = time::parse_duration)]
     lateness: Option<Time>,
     /// How long a `def_` flag's verdict must hold, in the source's time beyond
@@ -127,6 +135,10 @@ pub struct MonitorArgs {
 /// tenth of a second, well above a broker's on one site.
 const SPARKPLUG_LATENESS: Time = 100 * diagnoser::MS;
 
+/// The jitter allowed by default between an OPC UA change and its
+/// notification (sampling, queueing, the network): as over Sparkplug B.
+const OPCUA_LATENESS: Time = 100 * diagnoser::MS;
+
 /// Runs `gardefou monitor`.
 pub fn run(args: MonitorArgs) -> Result<(), Failure> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
@@ -178,6 +190,11 @@ fn source(args: &MonitorArgs) -> SourceConfig {
             broker: broker.clone(),
             target: target.clone(),
             lateness: args.lateness.unwrap_or(SPARKPLUG_LATENESS),
+        }
+    } else if let Some(url) = &args.opcua {
+        SourceConfig::Opcua {
+            url: url.clone(),
+            lateness: args.lateness.unwrap_or(OPCUA_LATENESS),
         }
     } else {
         SourceConfig::Stdin {

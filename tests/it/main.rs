@@ -28,6 +28,7 @@ mod learn_cli;
 mod monitor_can;
 mod monitor_cli;
 mod monitor_nats;
+mod monitor_opcua;
 mod monitor_sparkplug;
 mod netfault;
 mod probing;

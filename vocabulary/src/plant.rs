@@ -51,6 +51,9 @@ pub struct Plant {
     /// Modbus addresses written in `[modbus]`, overriding the default map (see
     /// [`Plant::modbus_map`]).
     pub modbus: Vec<ModbusEntry>,
+    /// OPC UA NodeIds written in `[opcua]`; a signal or flag without one is
+    /// found on the server by its browse name.
+    pub opcua: Vec<OpcuaEntry>,
 }
 
 /// One signal's place in a CANopen (CiA 401) process image: bit `bit` of the
@@ -94,6 +97,18 @@ pub struct ModbusEntry {
     pub table: ModbusTable,
     /// Its address in that table (0-based, as on the wire).
     pub address: u16,
+}
+
+/// One NodeId written in `[opcua]`: `C4 = "ns=2;s=Line.C4"`, or with the
+/// namespace by its URI, `def_C4 = "nsu=urn:line;s=Flags.def_C4"`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OpcuaEntry {
+    /// A signal, or a flag `def_<partition>` / `suspect_<partition>`.
+    pub name: String,
+    /// Its NodeId in OPC UA's text form (Part 6, 5.3.1.10): `ns=N;` or
+    /// `nsu=URI;` (none: namespace 0), then `i=`, `s=`, `g=` or `b=` and the
+    /// identifier.
+    pub node_id: String,
 }
 
 /// Where every signal and flag of a plant lives on a Modbus TCP server.
@@ -531,6 +546,8 @@ struct RawPlant {
     can: Vec<(Spanned<String>, Spanned<RawCanBit>)>,
     #[serde(default, deserialize_with = "ordered")]
     modbus: Vec<(Spanned<String>, Spanned<RawModbus>)>,
+    #[serde(default, deserialize_with = "ordered")]
+    opcua: Vec<(Spanned<String>, Spanned<String>)>,
 }
 
 #[derive(Deserialize)]
@@ -684,8 +701,10 @@ impl Checker<'_> {
             functional,
             can,
             modbus: Vec::new(),
+            opcua: Vec::new(),
         };
         plant.modbus = self.modbus(raw.modbus, &plant)?;
+        plant.opcua = self.opcua(raw.opcua, &plant)?;
         Ok(plant)
     }
 
@@ -1134,6 +1153,48 @@ impl Checker<'_> {
         Ok(with.modbus)
     }
 
+    /// `[opcua]`: known signals and flags, each a well-formed NodeId, no two
+    /// names at one node.
+    fn opcua(
+        &self,
+        raw: Vec<(Spanned<String>, Spanned<String>)>,
+        plant: &Plant,
+    ) -> Result<Vec<OpcuaEntry>, PlantError> {
+        let flags = plant.flags();
+        let mut entries: Vec<OpcuaEntry> = Vec::new();
+        for (name, node) in raw {
+            let n = name.get_ref();
+            if plant.signals.id(n).is_none() && !Flag::parse(n).is_some_and(|f| flags.contains(&f))
+            {
+                return Err(self.at(
+                    name.span(),
+                    "opcua",
+                    format!("unknown signal or flag '{n}' (flags are def_<partition> and suspect_<partition>)"),
+                ));
+            }
+            if entries.iter().any(|e| e.name == *n) {
+                return Err(self.at(name.span(), "opcua", format!("'{n}' mapped twice")));
+            }
+            let id = node.get_ref().as_str();
+            check_node_id(id).map_err(|m| self.at(node.span(), "opcua", format!("'{n}': {m}")))?;
+            if let Some(other) = entries.iter().find(|e| e.node_id == id) {
+                return Err(self.at(
+                    node.span(),
+                    "opcua",
+                    format!(
+                        "'{}' and '{n}' are both at {id}; give one of them another node",
+                        other.name
+                    ),
+                ));
+            }
+            entries.push(OpcuaEntry {
+                name: n.clone(),
+                node_id: id.to_string(),
+            });
+        }
+        Ok(entries)
+    }
+
     fn signal_list(
         &self,
         signals: &SignalTable,
@@ -1327,6 +1388,58 @@ fn check_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// Checks a NodeId in OPC UA's text form (Part 6, 5.3.1.10): an optional
+/// `ns=<0..65535>;` or `nsu=<URI>;`, then `i=<0..4294967295>`, `s=<text>`,
+/// `g=<GUID>` or `b=<base64>`.
+fn check_node_id(text: &str) -> Result<(), String> {
+    let form = "expected a NodeId such as ns=2;s=Line.C4, ns=3;i=1042 or nsu=URI;s=NAME";
+    let bad = |why: &str| format!("'{text}' is not a NodeId ({why}); {form}");
+    let rest = if let Some(r) = text.strip_prefix("ns=") {
+        let (ns, r) = r.split_once(';').ok_or_else(|| bad("no ';' after ns="))?;
+        ns.parse::<u16>()
+            .map_err(|_| bad(&format!("namespace '{ns}' is not a number from 0 to 65535")))?;
+        r
+    } else if let Some(r) = text.strip_prefix("nsu=") {
+        let (uri, r) = r.split_once(';').ok_or_else(|| bad("no ';' after nsu="))?;
+        if uri.is_empty() {
+            return Err(bad("empty namespace URI"));
+        }
+        r
+    } else {
+        text
+    };
+    let (kind, id) = rest
+        .split_once('=')
+        .ok_or_else(|| bad("no identifier: i=, s=, g= or b="))?;
+    if id.is_empty() {
+        return Err(bad("empty identifier"));
+    }
+    let fits = match kind {
+        "i" => id.parse::<u32>().is_ok(),
+        "s" => true,
+        "g" => {
+            let groups: Vec<&str> = id.split('-').collect();
+            groups.iter().map(|g| g.len()).eq([8, 4, 4, 4, 12])
+                && groups
+                    .iter()
+                    .all(|g| g.bytes().all(|b| b.is_ascii_hexdigit()))
+        }
+        "b" => id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'+' | b'/' | b'=')),
+        _ => return Err(bad(&format!("unknown identifier type '{kind}='"))),
+    };
+    if !fits {
+        let what = match kind {
+            "i" => "a numeric identifier is a number from 0 to 4294967295",
+            "g" => "a GUID is written 8-4-4-4-12 hexadecimal digits",
+            _ => "an opaque identifier is base64",
+        };
+        return Err(bad(what));
+    }
+    Ok(())
+}
+
 /// Byte offset of the first whole-word occurrence of `word` in `text`.
 fn word_offset(text: &str, word: &str) -> Option<usize> {
     let is_name = |c: char| c.is_ascii_alphanumeric() || c == '_';
@@ -1477,4 +1590,38 @@ fn default_partitions(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::check_node_id;
+
+    #[test]
+    fn node_ids_are_checked_in_their_text_form() {
+        for good in [
+            "i=85",
+            "ns=2;s=Line.C4",
+            "ns=0;i=4294967295",
+            "nsu=urn:example:line;s=C4",
+            "ns=1;g=72962B91-FA75-4AE6-8D28-B404DC7DAF63",
+            "ns=1;b=M/RbKBsRVkePCePcx24oRA==",
+            "ns=2;s=a=b;c",
+        ] {
+            assert_eq!(check_node_id(good), Ok(()), "{good}");
+        }
+        for (bad, why) in [
+            ("C4", "no identifier"),
+            ("ns=2;x=C4", "unknown identifier type 'x='"),
+            ("ns=2;s=", "empty identifier"),
+            ("ns=-1;s=C4", "namespace '-1'"),
+            ("ns=2s=C4", "no ';' after ns="),
+            ("nsu=;s=C4", "empty namespace URI"),
+            ("i=4294967296", "a number from 0 to 4294967295"),
+            ("g=72962b91-fa75-4ae6-8d28", "8-4-4-4-12"),
+            ("b=not base64!", "base64"),
+        ] {
+            let m = check_node_id(bad).expect_err(bad);
+            assert!(m.contains(why), "{bad}: {m}");
+        }
+    }
 }

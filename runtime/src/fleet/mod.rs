@@ -847,10 +847,13 @@ async fn store_checkpoint(
                 kv::UpdateErrorKind::WrongLastRevision => moved(e.to_string()),
                 _ => Trouble::Broker(format!("checkpoint: {e}")),
             }),
-        None => bucket.create(&key, bytes.into()).await.map_err(|e| match e.kind() {
-            kv::CreateErrorKind::AlreadyExists => moved(e.to_string()),
-            _ => Trouble::Broker(format!("checkpoint: {e}")),
-        }),
+        None => bucket
+            .create(&key, bytes.into())
+            .await
+            .map_err(|e| match e.kind() {
+                kv::CreateErrorKind::AlreadyExists => moved(e.to_string()),
+                _ => Trouble::Broker(format!("checkpoint: {e}")),
+            }),
     }
 }
 
@@ -871,7 +874,10 @@ impl Writing {
             bytes,
             held.revision,
         ));
-        Ok(Writing { task, seq: held.run.seq })
+        Ok(Writing {
+            task,
+            seq: held.run.seq,
+        })
     }
 
     /// Waits for the write, and notes its revision.
@@ -908,7 +914,13 @@ async fn write_checkpoint(
 ) -> Result<(), Trouble> {
     let bytes = checkpoint_bytes(served, held)?;
     let key = &served.name;
-    let revision = store_checkpoint(shared.checkpoints.clone(), key.clone(), bytes, held.revision).await?;
+    let revision = store_checkpoint(
+        shared.checkpoints.clone(),
+        key.clone(),
+        bytes,
+        held.revision,
+    )
+    .await?;
     held.revision = Some(revision);
     held.written = held.run.seq;
     view(shared, key, |p| p.checkpointed());

@@ -1,8 +1,9 @@
 //! Online diagnosis beside a PLC (`gardefou monitor`). Events come from a
 //! [`source::Source`] as they happen (Modbus TCP, SocketCAN, MQTT Sparkplug B,
-//! a replayed log, JSON lines on stdin); every part's diagnoser reads them. Verdict changes go
-//! out as JSON lines (SPEC §3), the flags they raise go back to the PLC
-//! (Modbus), and [`Config::http`] serves `/status` and `/metrics`.
+//! OPC UA, a replayed log, JSON lines on stdin); every part's diagnoser reads
+//! them. Verdict changes go out as JSON lines (SPEC §3), the flags they raise
+//! go back to the PLC (Modbus, Sparkplug B, OPC UA), and [`Config::http`]
+//! serves `/status` and `/metrics`.
 //!
 //! **Event time.** The diagnosers run on the source's clock: the time each
 //! scan was seen, not the time it arrived. A live source also sends
@@ -30,6 +31,7 @@
 pub mod can;
 pub mod http;
 pub mod modbus;
+pub mod opcua;
 mod probing;
 pub mod source;
 pub mod sparkplug;
@@ -87,6 +89,15 @@ pub enum SourceConfig {
         /// `GROUP/EDGE[/DEVICE]`.
         target: String,
         /// The jitter allowed between the node's messages, in its time.
+        lateness: Time,
+    },
+    /// The variables of an OPC UA server, followed with a subscription; the
+    /// flags go back with writes (see [`opcua`]).
+    Opcua {
+        /// The server: `opc.tcp://HOST:PORT`.
+        url: String,
+        /// The jitter allowed between a change and its notification, in the
+        /// source's time.
         lateness: Time,
     },
     /// Events as JSON lines on standard input (see [`stdin`]).
@@ -221,6 +232,11 @@ fn prepare_source(config: &Config, plant: &Plant) -> Result<OpenSource, Failure>
         } => Box::new(move || {
             let s = sparkplug::SparkplugSource::new(&broker, &target, &plant, speed, lateness)?;
             let name = format!("sparkplug {broker} {target}");
+            Ok((Box::new(s) as Box<dyn Source>, name))
+        }),
+        SourceConfig::Opcua { url, lateness } => Box::new(move || {
+            let s = opcua::OpcuaSource::new(&url, &plant, speed, lateness)?;
+            let name = format!("opcua {url}");
             Ok((Box::new(s) as Box<dyn Source>, name))
         }),
         SourceConfig::Stdin { lateness } => {

@@ -163,6 +163,27 @@ fn the_modbus_map_is_the_default_with_the_file_s_overrides() {
 }
 
 #[test]
+fn the_opcua_table_keeps_each_node_id_as_written() {
+    let plant =
+        parse(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/plants/good_opcua.toml"))
+            .expect("parses");
+    let entries: Vec<(&str, &str)> = plant
+        .opcua
+        .iter()
+        .map(|e| (e.name.as_str(), e.node_id.as_str()))
+        .collect();
+    assert_eq!(
+        entries,
+        [
+            ("C4", "ns=2;s=Line.Turntable.AtLoading"),
+            ("A4", "ns=3;i=1042"),
+            ("def_C4", "nsu=urn:example:line;s=Flags.def_C4"),
+            ("C5", "ns=2;g=72962b91-fa75-4ae6-8d28-b404dc7daf63"),
+        ]
+    );
+}
+
+#[test]
 fn each_actuator_has_three_probe_coils_from_200_and_clashes_are_refused() {
     use vocabulary::plant::{ModbusMap, ProbeCoil};
     let text = |modbus: &str| {
