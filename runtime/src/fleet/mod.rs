@@ -4,11 +4,12 @@
 //!
 //! Each plant a worker is given runs as a task of its own:
 //!
-//! 1. it takes the plant's [`lease::Lease`] (one worker at a time), or waits;
+//! 1. it takes the plant's lease ([`lease`]: one worker at a time, the plant's
+//!    preferred live worker first, see [`members`]), or waits;
 //! 2. it reads the plant's [`plant::Checkpoint`] from the key-value bucket
 //!    `gardefou-FLEET-checkpoints`, and the number of the last verdict line
 //!    on `gardefou.fleet.FLEET.PLANT`;
-//! 3. it follows `gardefou.events.PLANT` with an ordered consumer from the
+//! 3. it follows the stream `GARDEFOU_EVENTS_PLANT` with an ordered consumer from the
 //!    message after the checkpoint, feeds the records to the diagnosers
 //!    ([`plant::PlantRun`]), publishes each verdict line not yet published
 //!    (message id: fleet, plant, line number) and, once JetStream has it,
@@ -17,12 +18,12 @@
 //!    compare-and-set on its revision: a worker that finds it moved has lost
 //!    the plant, and stops.
 //!
-//! A worker killed between two checkpoints leaves its lease to expire; the
-//! next worker restores the checkpoint, reads again what followed, and
+//! A killed worker's name expires from the live workers, which frees its
+//! leases; the next worker restores the checkpoint, reads again what followed, and
 //! skips the lines already published: the lines come out once, as one
-//! uninterrupted run gives them. (A worker killed in the instant between a
-//! line's acknowledgement and its write to stdout leaves that line on the
-//! stream only.)
+//! uninterrupted run gives them. (A worker killed while a line is being
+//! published, before its acknowledgement and its write to stdout, leaves
+//! that line on the stream only.)
 //!
 //! Without [`Settings::duration`], a worker stops once every plant it was
 //! given has ended (its monitor stopped); with it, it stops then, and gives
