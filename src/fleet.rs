@@ -19,10 +19,12 @@ pub struct FleetArgs {
     #[arg(long, value_name = "URL")]
     nats: String,
     /// Plant file of a plant served (repeat, each with its `--model`).
-    #[arg(long, required = true)]
+    /// Without any, the worker serves every plant of the model store
+    /// (`gardefou learn … --publish URL`), each at its latest version.
+    #[arg(long)]
     plant: Vec<PathBuf>,
     /// Learned model of each `--plant`, in the same order.
-    #[arg(long, required = true)]
+    #[arg(long)]
     model: Vec<PathBuf>,
     /// Each plant's name in the subjects, as its monitor published it, in
     /// the order of `--plant` (default: the plant file's name).
@@ -55,6 +57,11 @@ pub struct FleetArgs {
 
 /// Runs `gardefou fleet`.
 pub fn run(args: FleetArgs) -> Result<(), Failure> {
+    if args.plant.is_empty() && !args.nats_plant.is_empty() {
+        return Err(Failure::bad(
+            "--nats-plant names a --plant; the plants of the model store have their own names",
+        ));
+    }
     if args.plant.len() != args.model.len() {
         return Err(Failure::bad(format!(
             "--plant and --model: {} plant files and {} models; give one model per plant",

@@ -14,6 +14,7 @@ use learning::graph::part_digraph;
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
 use logs::{IngestOptions, LogFormat, open};
+use runtime::jetstream::models::Bundle;
 
 /// Arguments of `gardefou learn`.
 #[derive(Debug, Args)]
@@ -68,6 +69,16 @@ pub struct LearnArgs {
     /// Do not learn: suggest [[parts]] (actuators with the sensors that follow them).
     #[arg(long)]
     suggest_parts: bool,
+    /// Also store the model in the NATS JetStream object store
+    /// `gardefou-models` of this server (`nats://HOST:PORT`), with the plant
+    /// file, as the plant's new version: fleet workers and monitors with
+    /// `--follow-models` take it up.
+    #[arg(long, value_name = "URL")]
+    publish: Option<String>,
+    /// The plant's name in the store and the subjects (default: the plant
+    /// file's name).
+    #[arg(long, value_name = "NAME", requires = "publish")]
+    nats_plant: Option<String>,
     /// Print nothing but errors.
     #[arg(short, long)]
     quiet: bool,
@@ -142,10 +153,11 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         fs::create_dir_all(dir)
             .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
     }
-    write_file(
-        &args.output,
-        &serde_json::to_vec_pretty(&model).map_err(|e| Failure::Io(e.to_string()))?,
-    )?;
+    let model_json = serde_json::to_vec_pretty(&model).map_err(|e| Failure::Io(e.to_string()))?;
+    write_file(&args.output, &model_json)?;
+    if let Some(url) = &args.publish {
+        publish(url, &args, &plant, model_json)?;
+    }
     if let Some(dir) = &args.dot {
         fs::create_dir_all(dir)
             .map_err(|e| Failure::Io(format!("cannot create {}: {e}", dir.display())))?;
@@ -194,6 +206,25 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         if !args.quiet {
             eprintln!("{}: {} violation(s)", path.display(), found.len());
         }
+    }
+    Ok(())
+}
+
+/// Stores the model just written, with the plant file, as the plant's new
+/// version in the store at `url`.
+fn publish(url: &str, args: &LearnArgs, plant: &Plant, model_json: Vec<u8>) -> Result<(), Failure> {
+    let plant_text = fs::read_to_string(&args.plant)
+        .map_err(|e| Failure::bad(format!("{}: {e}", args.plant.display())))?;
+    let model_text = String::from_utf8(model_json).map_err(|e| Failure::Io(e.to_string()))?;
+    let bundle = Bundle::new(plant_text, model_text);
+    let name = args.nats_plant.as_deref().unwrap_or(&plant.name);
+    runtime::jetstream::models::publish(url, name, &bundle)?;
+    if !args.quiet {
+        eprintln!(
+            "published model {} of plant {name} to {url} (object store {})",
+            bundle.version,
+            runtime::jetstream::models::BUCKET
+        );
     }
     Ok(())
 }

@@ -12,7 +12,7 @@ use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
 use filter_coupling::filter::{Coupling, Filter};
 use logs::{IngestOptions, LogFormat};
-use runtime::monitor::{Config, SourceConfig};
+use runtime::monitor::{Config, FollowModels, SourceConfig};
 
 /// Arguments of `gardefou monitor`.
 #[derive(Debug, Args)]
@@ -21,9 +21,10 @@ pub struct MonitorArgs {
     /// Plant file: signals, parts, faults, partitions and the register map.
     #[arg(long)]
     plant: PathBuf,
-    /// Learned model (from `gardefou learn`).
-    #[arg(long)]
-    model: PathBuf,
+    /// Learned model (from `gardefou learn`). With `--follow-models` and
+    /// without it, the plant's version in the model store.
+    #[arg(long, required_unless_present = "follow_models")]
+    model: Option<PathBuf>,
     /// Poll a PLC over Modbus TCP at the scan period (addresses: `[modbus]` of
     /// the plant file, or the default map) and write the flags back to it.
     #[arg(long, value_name = "HOST:PORT")]
@@ -121,6 +122,13 @@ pub struct MonitorArgs {
     /// warning.
     #[arg(long, value_name = "MB", default_value_t = 256, requires = "nats")]
     nats_outbox_mb: u64,
+    /// Take the plant's new model versions from the model store of the
+    /// `--nats` server (`gardefou learn … --publish URL`), each between two
+    /// scans: the diagnosers then start again from the values read, every
+    /// clock unknown, and flags raised stay raised. Verdict lines name the
+    /// model version. The plant file stays this one.
+    #[arg(long, requires = "nats")]
+    follow_models: bool,
     /// Make probing moves (with --modbus only): where a part's verdict stays
     /// ambiguous while its orders wait, ask the PLC's filter, through the
     /// probe coils, for a move of one of the part's outputs that a copy of the
@@ -150,14 +158,22 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         ));
     }
     let plant = Plant::from_path(&args.plant).map_err(Failure::bad)?;
-    let model = Model::from_path(&args.model).map_err(Failure::bad)?;
     let mut config = config(&args, &plant);
+    let (model, version, named) = model(&args, &config)?;
+    if let (true, Some(nats)) = (args.follow_models, &config.nats) {
+        config.models = Some(FollowModels {
+            url: nats.url.clone(),
+            plant: nats.plant.clone(),
+            version,
+            options: DiagnoserOptions::default(),
+        });
+    }
     if args.probe {
         // The coupling the PLC's filter reads the flags with: a suspected
         // sensor reads the union of reading and estimate, so a move it
         // accepts is safe under every candidate.
         let filter = Filter::new(&plant, Some(&model), Coupling::FlagsAndSuspects)
-            .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
+            .map_err(|e| Failure::bad(format!("{named}: {e}")))?;
         config.probe = Some(filter);
     }
     let options = DiagnoserOptions {
@@ -167,9 +183,31 @@ pub fn run(args: MonitorArgs) -> Result<(), Failure> {
         // hold the control's reaction to an edge back.
         held_reactions: config.source.polled(),
     };
+    if let Some(follow) = config.models.as_mut() {
+        follow.options = options;
+    }
     let diagnoser = PlantDiagnoser::new(&plant, &model, &options)
-        .map_err(|e| Failure::bad(format!("{}: {e}", args.model.display())))?;
+        .map_err(|e| Failure::bad(format!("{named}: {e}")))?;
     runtime::monitor::run(plant, diagnoser, config)
+}
+
+/// The model the monitor starts with, its version, and how errors name it:
+/// `--model`'s file, or the plant's version in the store.
+fn model(args: &MonitorArgs, config: &Config) -> Result<(Model, String, String), Failure> {
+    if let Some(path) = &args.model {
+        let bytes =
+            std::fs::read(path).map_err(|e| Failure::bad(format!("{}: {e}", path.display())))?;
+        let model = Model::from_path(path).map_err(Failure::bad)?;
+        let version = runtime::jetstream::models::model_version(&bytes);
+        return Ok((model, version, path.display().to_string()));
+    }
+    let nats = config
+        .nats
+        .as_ref()
+        .ok_or_else(|| Failure::bad("--model: required without --follow-models"))?;
+    let v = runtime::jetstream::models::fetch(&nats.url, &nats.plant)?;
+    let named = format!("model {} of plant {} in the store", v.version, nats.plant);
+    Ok((v.model, v.version, named))
 }
 
 /// The source the arguments name (clap lets exactly one through).
@@ -244,5 +282,6 @@ fn config(args: &MonitorArgs, plant: &Plant) -> Config {
             .nats
             .as_ref()
             .map(|url| nats_settings(args, url, plant)),
+        models: None,
     }
 }

@@ -235,3 +235,135 @@ fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
         assert_eq!(&stored, want, "plant {plant}: the stream's lines");
     }
 }
+
+/// `gardefou learn … --publish`: the model version it stored, from its
+/// message.
+fn learn_and_publish(url: &str, dir: &Path, name: &str, args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args([
+            "learn",
+            "--plant",
+            &path("datasets/data/sorting/F2/plant.toml"),
+        ])
+        .arg(path("datasets/data/sorting/normal/events.csv"))
+        .arg("-o")
+        .arg(dir.join(format!("{name}.json")))
+        .args(["--publish", url, "--nats-plant", "a"])
+        .args(args)
+        .output()
+        .expect("learn runs");
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{err}");
+    let version = err
+        .lines()
+        .find_map(|l| l.strip_prefix("published model "))
+        .and_then(|l| l.split(' ').next())
+        .unwrap_or_else(|| panic!("learn says what it published:\n{err}"));
+    version.to_string()
+}
+
+/// The model versions `lines` name, in order, each once.
+fn versions(lines: &[String]) -> Vec<String> {
+    let mut seen: Vec<String> = Vec::new();
+    for line in lines {
+        let v: serde_json::Value = serde_json::from_str(line).expect("a JSON line");
+        let model = v["model"].as_str().unwrap_or("(none)").to_string();
+        if seen.last() != Some(&model) {
+            seen.push(model);
+        }
+    }
+    seen
+}
+
+#[test]
+fn a_new_model_in_the_store_is_taken_up_by_a_worker_and_a_monitor_between_two_messages() {
+    let Some(bin) = nats_server() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let port = free_port();
+    let _server = Server::start(&bin, port, &dir.path().join("store"));
+    let url = format!("nats://127.0.0.1:{port}");
+    let first = learn_and_publish(&url, dir.path(), "m1", &[]);
+
+    // A worker with no --plant serves the store's plants.
+    let mut worker = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args(["fleet", "--nats", &url, "--worker", "W"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("a worker starts");
+    std::thread::sleep(Duration::from_millis(1500));
+    let log = dir.path().join("a.csv");
+    std::fs::write(&log, slice("F2")).expect("writes the slice");
+    // The monitor takes its model from the store too (no --model).
+    let monitor = Command::new(env!("CARGO_BIN_EXE_gardefou"))
+        .args([
+            "monitor",
+            "--plant",
+            &path("datasets/data/sorting/F2/plant.toml"),
+        ])
+        .arg("--replay")
+        .arg(&log)
+        .args(["--speed", "2", "--nats", &url, "--nats-plant", "a"])
+        .arg("--follow-models")
+        .arg("--nats-outbox")
+        .arg(dir.path().join("a.outbox"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("a monitor starts");
+    let (tx, rx) = mpsc::channel();
+    let stdout = worker.stdout.take().expect("the worker's stdout");
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut lines = vec![
+        rx.recv_timeout(Duration::from_secs(30))
+            .expect("the worker prints a line"),
+    ];
+    // A new version while both run.
+    let second = learn_and_publish(&url, dir.path(), "m2", &["--margin-rel", "0.2"]);
+    assert_ne!(first, second, "two models, two versions");
+    let monitored = monitor.wait_with_output().expect("the monitor ends");
+    let monitor_err = String::from_utf8_lossy(&monitored.stderr).to_string();
+    assert!(monitored.status.success(), "{monitor_err}");
+    // The worker's lines until it has been quiet for 3 s, then it stops.
+    while let Ok(line) = rx.recv_timeout(Duration::from_secs(3)) {
+        lines.push(line);
+    }
+    let _ = Command::new("kill")
+        .args(["-TERM", &worker.id().to_string()])
+        .status();
+    let done = worker.wait_with_output().expect("the worker ends");
+    let worker_err = String::from_utf8_lossy(&done.stderr).to_string();
+    assert!(done.status.success(), "{worker_err}");
+
+    // Each names the model it used: the first version, then the second.
+    let replaced = format!("model {second} replaces {first}");
+    assert_eq!(
+        versions(&lines),
+        [first.clone(), second.clone()],
+        "{worker_err}"
+    );
+    assert!(worker_err.contains(&replaced), "{worker_err}");
+    let monitor_lines: Vec<String> = String::from_utf8_lossy(&monitored.stdout)
+        .lines()
+        .map(String::from)
+        .collect();
+    assert_eq!(
+        versions(&monitor_lines),
+        [first.clone(), second.clone()],
+        "{monitor_err}"
+    );
+    assert!(monitor_err.contains(&replaced), "{monitor_err}");
+    // The worker's lines are the monitor's, with the plant.
+    for line in &lines {
+        let v: serde_json::Value = serde_json::from_str(line).expect("a JSON line");
+        assert_eq!(v["plant"], "a", "{line}");
+    }
+}

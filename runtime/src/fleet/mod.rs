@@ -46,8 +46,7 @@ use async_nats::jetstream::{
 };
 use diagnoser::diagnosis::fusion::PLANT_VIEW;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
-use diagnoser::model::Model;
-use diagnoser::{Failure, Plant, TimeFormat};
+use diagnoser::{Failure, TimeFormat};
 use futures_util::StreamExt;
 use tokio::sync::watch;
 use tokio::time::Instant;
@@ -55,30 +54,26 @@ use tokio::time::Instant;
 use self::lease::{Table, Taken};
 use self::plant::{Checkpoint, PlantRun, Resumed};
 use self::view::View;
+use crate::jetstream::connect;
+use crate::jetstream::models::{self, Change};
 use crate::jetstream::record::{self, Record, Subjects};
 
-/// How long connecting waits for the server.
-const CONNECT_WAIT: Duration = Duration::from_secs(5);
 /// Wait before trying again after the broker failed a plant's task.
 const RETRY_EVERY: Duration = Duration::from_millis(500);
 /// Plants taken up at once: a worker starting with a thousand plants makes
 /// their consumers a few at a time.
 const STARTING: usize = 64;
+/// A plant's versions as its task sees them: the latest, or `None` once its
+/// model is removed from the store.
+type Versions = watch::Receiver<Option<Arc<Served>>>;
 /// The header with a fleet verdict line's number.
 pub const LINE_HEADER: &str = "Gardefou-Line";
 
-/// A plant a worker may serve.
-#[derive(Debug, Clone)]
-pub struct Served {
-    /// Its name in the subjects.
-    pub name: String,
-    /// Its plant file.
-    pub plant: Plant,
-    /// Its model.
-    pub model: Model,
-    /// The model's version, named in every verdict line.
-    pub version: String,
-}
+/// A plant a worker may serve: its name in the subjects, its plant file,
+/// its model and the model's version (named in every verdict line).
+pub type Served = crate::jetstream::models::Version;
+
+pub use crate::jetstream::models::model_version;
 
 /// Settings of one worker.
 #[derive(Debug, Clone)]
@@ -90,7 +85,8 @@ pub struct Settings {
     pub fleet: String,
     /// This worker's name, in the leases.
     pub worker: String,
-    /// The plants this worker may serve.
+    /// The plants this worker may serve; empty: every plant of the model
+    /// store ([`crate::jetstream::models`]), each at its latest version.
     pub plants: Vec<Served>,
     /// How often a plant's checkpoint is written.
     pub checkpoint_every: Duration,
@@ -154,6 +150,13 @@ struct Shared {
 }
 
 impl Shared {
+    /// Whether a plant's task ends with the plant (its monitor stopped): for
+    /// plants given, without [`Settings::duration`]. Plants of the store are
+    /// served until the worker stops, as a plant may start again.
+    fn until_end(&self) -> bool {
+        self.settings.duration.is_none() && !self.settings.plants.is_empty()
+    }
+
     /// Whether `plant` prefers this worker among the live ones.
     fn mine(&self, plant: &str) -> bool {
         let live = self.live.borrow();
@@ -289,13 +292,12 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
         out: Mutex::new(Box::new(std::io::stdout())),
         view,
     });
-    let tasks: Vec<_> = settings
-        .plants
-        .iter()
-        .cloned()
-        .map(|served| tokio::spawn(serve(shared.clone(), served)))
-        .collect();
-    let all_ended = futures_util::future::join_all(tasks);
+    let all_ended = if settings.plants.is_empty() {
+        let store = models::store(&shared.js).await.map_err(io)?;
+        tokio::spawn(from_store(shared.clone(), store))
+    } else {
+        tokio::spawn(given(shared.clone()))
+    };
     tokio::pin!(all_ended);
     let stop_at = settings.duration.map(|d| Instant::now() + d);
     let mut terminate = crate::monitor::terminate_signal()?;
@@ -313,17 +315,147 @@ async fn work(settings: Settings, names: Names) -> Result<(), Failure> {
         }
     };
     let failures: Vec<Failure> = results
+        .unwrap_or_default()
         .into_iter()
-        .filter_map(|r| match r {
-            Ok(Err(f)) => Some(f),
-            _ => None,
-        })
+        .filter_map(Result::err)
         .collect();
     let summary = shared.view.lock().map(|v| v.summary()).unwrap_or_default();
     eprintln!("fleet: {summary}");
     match failures.into_iter().next() {
         Some(f) => Err(f),
         None => Ok(()),
+    }
+}
+
+/// The plants given, each a task of its own, until each has ended.
+async fn given(shared: Arc<Shared>) -> Vec<Result<(), Failure>> {
+    let mut versions = Vec::new();
+    let tasks: Vec<_> = (shared.settings.plants.iter())
+        .map(|s| {
+            let (tx, rx) = watch::channel(Some(Arc::new(s.clone())));
+            versions.push(tx);
+            tokio::spawn(serve(shared.clone(), rx))
+        })
+        .collect();
+    let results = futures_util::future::join_all(tasks).await;
+    results.into_iter().filter_map(Result::ok).collect()
+}
+
+/// Every plant of the model store, each a task of its own, and each new
+/// version given to its task, until the worker stops.
+async fn from_store(
+    shared: Arc<Shared>,
+    store: async_nats::jetstream::object_store::ObjectStore,
+) -> Vec<Result<(), Failure>> {
+    let mut plants: std::collections::HashMap<String, watch::Sender<Option<Arc<Served>>>> =
+        std::collections::HashMap::new();
+    let mut tasks = tokio::task::JoinSet::new();
+    let mut results = Vec::new();
+    let mut stop = shared.stop.clone();
+    'watch: loop {
+        let mut changes = match models::watch(&store).await {
+            Ok(changes) => Box::pin(changes),
+            Err(e) => {
+                eprintln!("warning: fleet: {e}; trying again");
+                pause(&shared, RETRY_EVERY).await;
+                if *shared.stop.borrow() {
+                    break 'watch;
+                }
+                continue;
+            }
+        };
+        loop {
+            tokio::select! {
+                () = stopped(&mut stop) => break 'watch,
+                Some(done) = tasks.join_next(), if !tasks.is_empty() => {
+                    results.extend(done.ok());
+                }
+                change = changes.next() => match change {
+                    Some(Ok(Change::Stored(name))) => match models::get(&store, &name).await {
+                        Ok(Some(v)) => offer(&shared, &mut plants, &mut tasks, v),
+                        Ok(None) => {}
+                        Err(e) => eprintln!("warning: fleet: {e}; this version is not taken"),
+                    },
+                    Some(Ok(Change::Removed(name))) => {
+                        if let Some(tx) = plants.get(&name) {
+                            tx.send_replace(None);
+                        }
+                    }
+                    Some(Err(e)) => {
+                        eprintln!("warning: fleet: {e}; watching the store again");
+                        break;
+                    }
+                    None => break,
+                },
+            }
+        }
+        pause(&shared, RETRY_EVERY).await;
+    }
+    while let Some(done) = tasks.join_next().await {
+        results.extend(done.ok());
+    }
+    results
+}
+
+/// A version read from the store: to its plant's task, or a new task for a
+/// plant not served yet (or removed before).
+fn offer(
+    shared: &Arc<Shared>,
+    plants: &mut std::collections::HashMap<String, watch::Sender<Option<Arc<Served>>>>,
+    tasks: &mut tokio::task::JoinSet<Result<(), Failure>>,
+    v: Served,
+) {
+    if let Err(e) = Subjects::of(&v.name) {
+        eprintln!(
+            "warning: fleet: model store object {}: {e}; not served",
+            v.name
+        );
+        return;
+    }
+    let v = Arc::new(v);
+    if let Some(tx) = plants.get(&v.name).filter(|tx| !tx.is_closed()) {
+        tx.send_if_modified(|now| {
+            let same = now.as_ref().is_some_and(|n| n.version == v.version);
+            if !same {
+                *now = Some(v.clone());
+            }
+            !same
+        });
+        return;
+    }
+    if let Ok(mut view) = shared.view.lock() {
+        view.add(&v.name, &v.version);
+    }
+    let (tx, rx) = watch::channel(Some(v.clone()));
+    plants.insert(v.name.clone(), tx);
+    tasks.spawn(serve(shared.clone(), rx));
+}
+
+/// Puts the version `next` in the place of `served`'s between two messages:
+/// the diagnosers start again from the values read, every clock unknown
+/// (see [`plant`]). `false`, with a warning, when it cannot take over; the
+/// old version stays.
+fn take_version(shared: &Shared, served: &Served, next: &Served, held: &mut Held) -> bool {
+    let run = served.takes_over(next).and_then(|()| {
+        let diagnoser = PlantDiagnoser::new(&next.plant, &next.model, &shared.settings.options)
+            .map_err(|e| format!("model {} of plant {}: {e}", next.version, next.name))?;
+        let mut run = PlantRun::new(diagnoser, next.plant.signals.len());
+        run.restore(&held.run.checkpoint(&served.version, None), &next.version)?;
+        Ok(run)
+    });
+    match run {
+        Ok(run) => {
+            eprintln!(
+                "fleet: {}: model {} replaces {} after message {}: the diagnosers start again from the values read",
+                served.name, next.version, served.version, held.run.seq
+            );
+            held.run = run;
+            true
+        }
+        Err(e) => {
+            eprintln!("warning: fleet: {e}; model {} stays", served.version);
+            false
+        }
     }
 }
 
@@ -349,19 +481,6 @@ async fn sleep_until(at: Option<Instant>) {
     }
 }
 
-async fn connect(url: &str) -> Result<jetstream::Context, Failure> {
-    let client = tokio::time::timeout(CONNECT_WAIT, async_nats::connect(url))
-        .await
-        .map_err(|_| {
-            Failure::Io(format!(
-                "nats {url}: no answer within {} s",
-                CONNECT_WAIT.as_secs()
-            ))
-        })?
-        .map_err(|e| Failure::Io(format!("nats {url}: {e}")))?;
-    Ok(jetstream::new(client))
-}
-
 /// Why a plant's following ended.
 enum Followed {
     /// The plant's monitor stopped (without [`Settings::duration`]).
@@ -373,6 +492,8 @@ enum Followed {
     /// A worker the plant prefers has joined: it takes the plant from the
     /// checkpoint just written.
     HandedOver,
+    /// The plant's model was removed from the store.
+    Removed,
 }
 
 /// How often a plant's task looks again at its lease with no change seen
@@ -385,15 +506,21 @@ const LOOK_EVERY: Duration = Duration::from_millis(250);
 /// the plant has ended (without [`Settings::duration`]) or the worker stops.
 /// A bad message or checkpoint ends the task with an error; the broker's
 /// troubles only delay it.
-async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
-    let key = served.name.clone();
-    let until_end = shared.settings.duration.is_none();
+async fn serve(shared: Arc<Shared>, mut versions: Versions) -> Result<(), Failure> {
+    let Some(key) = versions.borrow().as_ref().map(|s| s.name.clone()) else {
+        return Ok(());
+    };
+    let until_end = shared.until_end();
     let mut changes = shared.changes.clone();
     let mut free_since: Option<Instant> = None;
     loop {
         if *shared.stop.borrow() {
             return Ok(());
         }
+        let Some(served) = versions.borrow_and_update().clone() else {
+            eprintln!("fleet: {key}: its model was removed from the store; not served any more");
+            return Ok(());
+        };
         let seen = shared.table.get(&key);
         let holder = seen.as_ref().and_then(|s| s.holder.clone());
         if until_end && holder.as_deref() == Some(lease::ENDED) {
@@ -413,7 +540,7 @@ async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
                     Ok(Taken::Held(revision)) => {
                         free_since = None;
                         let held = Holding { revision, mine };
-                        if let Some(end) = hold(&shared, &served, held).await? {
+                        if let Some(end) = hold(&shared, served, held, &mut versions).await? {
                             return Ok(end);
                         }
                     }
@@ -426,7 +553,10 @@ async fn serve(shared: Arc<Shared>, served: Served) -> Result<(), Failure> {
                 continue;
             }
         }
-        let _ = tokio::time::timeout(LOOK_EVERY, changes.changed()).await;
+        tokio::select! {
+            _ = tokio::time::timeout(LOOK_EVERY, changes.changed()) => {}
+            Ok(()) = versions.changed() => {}
+        }
     }
 }
 
@@ -440,12 +570,21 @@ struct Holding {
 
 /// Follows a plant held, and says what became of it: `Some(())` when the
 /// task is over, `None` when the plant may be taken again later.
-async fn hold(shared: &Shared, served: &Served, held: Holding) -> Result<Option<()>, Failure> {
-    let key = &served.name;
-    let outcome = follow(shared, served, held).await;
+async fn hold(
+    shared: &Shared,
+    served: Arc<Served>,
+    held: Holding,
+    versions: &mut Versions,
+) -> Result<Option<()>, Failure> {
+    let key = &served.name.clone();
+    let outcome = follow(shared, served, held, versions).await;
     view(shared, key, |p| p.served = false);
     match outcome {
         Ok(Followed::Ended) | Ok(Followed::Stopped) => Ok(Some(())),
+        Ok(Followed::Removed) => {
+            eprintln!("fleet: {key}: its model was removed from the store; not served any more");
+            Ok(Some(()))
+        }
         Ok(Followed::HandedOver) => {
             eprintln!("fleet: {key}: handed over to the worker it prefers");
             Ok(None)
@@ -603,13 +742,19 @@ async fn last_line(shared: &Shared, plant: &str) -> Result<u64, Trouble> {
 /// Follows a plant held until it ends, the worker stops, or the lease is
 /// lost. A plant taken as this worker's (`mine`) is handed over when a
 /// worker it prefers joins.
-async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Followed, Trouble> {
-    let key = &served.name;
+async fn follow(
+    shared: &Shared,
+    served: Arc<Served>,
+    holding: Holding,
+    versions: &mut Versions,
+) -> Result<Followed, Trouble> {
+    let mut served = served;
+    let key = &served.name.clone();
     let give_back =
         |value: &'static str| lease::give_back(&shared.leases, key, holding.revision, value);
     let started = shared.starting.acquire().await;
-    let mut held = resume(shared, served).await?;
-    let until_end = shared.settings.duration.is_none();
+    let mut held = resume(shared, &served).await?;
+    let until_end = shared.until_end();
     if until_end && held.run.event_time().ended {
         give_back(lease::ENDED).await;
         return Ok(Followed::Ended);
@@ -642,12 +787,13 @@ async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Fo
     // Checkpoints are written beside the reading: a write's round trip does
     // not hold the plant's next message back.
     let mut writing: Option<Writing> = None;
+    let mut watching = true;
     loop {
         tokio::select! {
             biased;
             () = stopped(&mut stop) => {
                 settle_writing(&mut writing, shared, key, &mut held).await?;
-                write_checkpoint(shared, served, &mut held).await?;
+                write_checkpoint(shared, &served, &mut held).await?;
                 give_back("").await;
                 return Ok(Followed::Stopped);
             }
@@ -657,14 +803,33 @@ async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Fo
                 }
                 if holding.mine && !shared.mine(key) {
                     settle_writing(&mut writing, shared, key, &mut held).await?;
-                    write_checkpoint(shared, served, &mut held).await?;
+                    write_checkpoint(shared, &served, &mut held).await?;
                     give_back("").await;
                     return Ok(Followed::HandedOver);
                 }
             }
+            changed = versions.changed(), if watching => {
+                if changed.is_err() {
+                    // The plant's versions are given once and for all.
+                    watching = false;
+                    continue;
+                }
+                let next = versions.borrow_and_update().clone();
+                settle_writing(&mut writing, shared, key, &mut held).await?;
+                let Some(next) = next else {
+                    write_checkpoint(shared, &served, &mut held).await?;
+                    give_back("").await;
+                    return Ok(Followed::Removed);
+                };
+                if next.version != served.version && take_version(shared, &served, &next, &mut held) {
+                    served = next;
+                    write_checkpoint(shared, &served, &mut held).await?;
+                    view(shared, key, |p| p.model = served.version.clone());
+                }
+            }
             _ = checkpoint.tick(), if writing.is_none() => {
                 if held.run.seq != held.written {
-                    writing = Some(Writing::start(shared, served, &held)?);
+                    writing = Some(Writing::start(shared, &served, &held)?);
                 }
             }
             done = async { (&mut writing.as_mut().expect("a write under way").task).await }, if writing.is_some() => {
@@ -687,10 +852,10 @@ async fn follow(shared: &Shared, served: &Served, holding: Holding) -> Result<Fo
                 if let Some(why) = shared.lost(key) {
                     return Ok(Followed::LeaseLost(why));
                 }
-                take(shared, served, &mut held, &message).await?;
+                take(shared, &served, &mut held, &message).await?;
                 if until_end && held.run.event_time().ended {
                     settle_writing(&mut writing, shared, key, &mut held).await?;
-                    write_checkpoint(shared, served, &mut held).await?;
+                    write_checkpoint(shared, &served, &mut held).await?;
                     give_back(lease::ENDED).await;
                     return Ok(Followed::Ended);
                 }
@@ -756,30 +921,12 @@ async fn take(
     Ok(())
 }
 
-/// A model's version: the first 12 hexadecimal digits of the SHA-256 of
-/// its `model.json`, so that the same model has the same version wherever
-/// it is read from.
-pub fn model_version(model_json: &[u8]) -> String {
-    let digest = ring::digest::digest(&ring::digest::SHA256, model_json);
-    digest.as_ref()[..6]
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
-
 /// A verdict's line as the fleet prints it: the monitor's, with the plant
 /// and the model version after the time.
 pub fn fleet_line(v: &Verdict, time: TimeFormat, plant: &str, model: &str) -> String {
-    let line = v.json_line(time, None);
-    let Some(i) = line.find(',') else {
-        return line;
-    };
-    let plant = serde_json::Value::String(plant.to_string());
-    let model = serde_json::Value::String(model.to_string());
-    format!(
-        "{},\"plant\":{plant},\"model\":{model}{}",
-        &line[..i],
-        &line[i..]
+    record::with_fields(
+        &v.json_line(time, None),
+        &[("plant", plant), ("model", model)],
     )
 }
 

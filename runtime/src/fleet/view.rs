@@ -46,6 +46,22 @@ pub struct PlantView {
 }
 
 impl PlantView {
+    /// Plant `name` with model version `model`, not served yet.
+    pub fn new(name: &str, model: &str) -> PlantView {
+        PlantView {
+            name: name.to_string(),
+            model: model.to_string(),
+            served: false,
+            verdict: None,
+            labels: Vec::new(),
+            flags: Vec::new(),
+            t: None,
+            seq: 0,
+            lag: 0,
+            checkpoint: None,
+        }
+    }
+
     /// The message at stream sequence `seq` was read, `pending` after it;
     /// a scan at `t`, if a scan.
     pub fn message(&mut self, seq: u64, pending: u64, t: Option<serde_json::Value>) {
@@ -105,24 +121,20 @@ impl View {
             plants: settings
                 .plants
                 .iter()
-                .map(|s| PlantView {
-                    name: s.name.clone(),
-                    model: s.version.clone(),
-                    served: false,
-                    verdict: None,
-                    labels: Vec::new(),
-                    flags: Vec::new(),
-                    t: None,
-                    seq: 0,
-                    lag: 0,
-                    checkpoint: None,
-                })
+                .map(|s| PlantView::new(&s.name, &s.version))
                 .collect(),
             started: Instant::now(),
             events: 0,
             messages: 0,
             lines: 0,
             latency: Latency::default(),
+        }
+    }
+
+    /// Adds plant `name` (from the model store), if not there yet.
+    pub fn add(&mut self, name: &str, model: &str) {
+        if self.plant_mut(name).is_none() {
+            self.plants.push(PlantView::new(name, model));
         }
     }
 

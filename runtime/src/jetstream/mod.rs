@@ -16,6 +16,7 @@
 //! limits retention without limits (an archive; set limits on the streams
 //! with the NATS tools), and a duplicate window of [`DUPLICATE_WINDOW`].
 
+pub mod models;
 pub mod outbox;
 pub mod record;
 
@@ -39,8 +40,25 @@ pub const DUPLICATE_WINDOW: Duration = Duration::from_secs(600);
 const ACK_WAIT: Duration = Duration::from_secs(2);
 /// Wait before trying again after a failure.
 const RETRY_EVERY: Duration = Duration::from_millis(250);
+/// How long connecting waits for the server.
+const CONNECT_WAIT: Duration = Duration::from_secs(5);
 /// Messages kept in memory before the outbox spills to disk.
 const IN_MEMORY: usize = 4096;
+
+/// Connects to the server at `url` (`nats://HOST:PORT`), waiting at most
+/// [`CONNECT_WAIT`].
+pub async fn connect(url: &str) -> Result<jetstream::Context, Failure> {
+    let client = tokio::time::timeout(CONNECT_WAIT, async_nats::connect(url))
+        .await
+        .map_err(|_| {
+            Failure::Io(format!(
+                "nats {url}: no answer within {} s",
+                CONNECT_WAIT.as_secs()
+            ))
+        })?
+        .map_err(|e| Failure::Io(format!("nats {url}: {e}")))?;
+    Ok(jetstream::new(client))
+}
 
 /// Where and how to publish.
 #[derive(Debug, Clone)]

@@ -221,6 +221,24 @@ pub fn read(payload: &[u8], plant: &Plant) -> Result<Record, String> {
     Err("neither start, scan, watermark, lost nor end".into())
 }
 
+/// A verdict's JSON line (SPEC §3) with `fields` (JSON strings) after its
+/// time: how the fleet names the plant and the model version.
+pub fn with_fields(line: &str, fields: &[(&str, &str)]) -> String {
+    let Some(i) = line.find(',') else {
+        return line.to_string();
+    };
+    let mut out = String::with_capacity(line.len() + 64);
+    out.push_str(&line[..i]);
+    for (name, value) in fields {
+        out.push_str(&format!(
+            ",\"{name}\":{}",
+            serde_json::Value::String(value.to_string())
+        ));
+    }
+    out.push_str(&line[i..]);
+    out
+}
+
 /// A time format's name in a start message.
 pub fn time_name(time: TimeFormat) -> &'static str {
     match time {

@@ -150,6 +150,27 @@ pub struct Config {
     /// Where to publish the plant's events, verdicts and flags (`--nats`),
     /// if anywhere.
     pub nats: Option<crate::jetstream::Settings>,
+    /// Where to take new model versions from (`--follow-models`), if
+    /// anywhere.
+    pub models: Option<FollowModels>,
+}
+
+/// New model versions of the plant, from the model store
+/// ([`crate::jetstream::models`]), each taken at the next safe point: between
+/// two items, the diagnosers start again from the values read, every clock
+/// unknown, as after a reconnection; flags raised stay raised. The plant
+/// file stays the monitor's own (its register map, its flags). Verdict lines
+/// then name the model version.
+#[derive(Debug, Clone)]
+pub struct FollowModels {
+    /// The server: `nats://HOST:PORT`.
+    pub url: String,
+    /// The plant's name in the store.
+    pub plant: String,
+    /// The version the monitor starts with.
+    pub version: String,
+    /// The diagnosers' options, for each new version.
+    pub options: diagnoser::diagnosis::DiagnoserOptions,
 }
 
 /// How long a stopping monitor waits for the broker to take what it has not
@@ -167,6 +188,11 @@ const PROBE_CLEAR_WAIT: Duration = Duration::from_secs(2);
 pub fn run(plant: Plant, diagnoser: PlantDiagnoser, config: Config) -> Result<(), Failure> {
     if !(config.speed.is_finite() && config.speed > 0.0) {
         return Err(Failure::bad("--speed: must be a positive number"));
+    }
+    if config.probe.is_some() && config.models.is_some() {
+        return Err(Failure::bad(
+            "--probe and --follow-models: probing moves are checked on a copy of the filter built from the model given; follow new models without --probe",
+        ));
     }
     if config.probe.is_some() && !matches!(config.source, SourceConfig::Modbus { .. }) {
         return Err(Failure::bad(
@@ -257,9 +283,20 @@ struct Writer {
     terminal: bool,
     time: TimeFormat,
     error: Option<std::io::Error>,
+    /// The model version, named in every line (`--follow-models`).
+    model: Option<String>,
 }
 
 impl Writer {
+    /// The verdict's JSON line, naming the model version if followed.
+    fn json(&self, v: &Verdict) -> String {
+        let line = v.json_line(self.time, None);
+        match &self.model {
+            Some(model) => crate::jetstream::record::with_fields(&line, &[("model", model)]),
+            None => line,
+        }
+    }
+
     fn line(&mut self, v: &Verdict) {
         if self.error.is_some() {
             return;
@@ -267,7 +304,7 @@ impl Writer {
         let text = if self.terminal {
             readable(v, self.time)
         } else {
-            v.json_line(self.time, None)
+            self.json(v)
         };
         if let Err(e) = writeln!(self.out, "{text}").and_then(|()| self.out.flush()) {
             self.error = Some(e);
@@ -323,7 +360,7 @@ impl Outputs {
         }
         self.writer.line(&v);
         if let Some(p) = self.publisher.as_mut() {
-            p.verdict(&v.json_line(self.writer.time, None));
+            p.verdict(&self.writer.json(&v));
         }
         let changed = self.board.update(&v);
         let Ok(mut s) = self.status.lock() else {
@@ -409,6 +446,9 @@ struct Run {
     watermark: Option<Time>,
     /// Whether the watermark keeps up with the live clock.
     observed: bool,
+    /// Every signal's value now (empty before the first start): where a new
+    /// model version starts from.
+    values: Vec<bool>,
 }
 
 impl Run {
@@ -425,6 +465,7 @@ impl Run {
             lost_at: None,
             watermark: None,
             observed: true,
+            values: Vec::new(),
         }
     }
 
@@ -458,6 +499,7 @@ impl Run {
             );
         }
         self.diagnoser.start(t0, initial);
+        self.values = initial.to_vec();
         if let Some(p) = self.out.probing.as_mut() {
             p.start(initial);
         }
@@ -508,6 +550,9 @@ impl Run {
         }
         let out = &mut self.out;
         for e in scan {
+            if let Some(v) = self.values.get_mut(e.signal.index()) {
+                *v = e.value;
+            }
             self.diagnoser.push(e, &mut |v| out.emit(v));
         }
         self.advance_to(t);
@@ -597,6 +642,43 @@ impl Run {
             self.out.board.adopt(f);
         }
         self.out.publish_flags();
+    }
+
+    /// A new model version, between two items (a safe point): the
+    /// diagnosers start again from the values read, every clock unknown. A
+    /// version that does not fit the plant is refused, and the old one stays.
+    fn take_model(
+        &mut self,
+        v: crate::jetstream::models::Version,
+        options: &diagnoser::diagnosis::DiagnoserOptions,
+    ) {
+        let old = self.out.writer.model.clone().unwrap_or_default();
+        if v.version == old {
+            return;
+        }
+        let mut diagnoser = match PlantDiagnoser::new(&self.out.plant, &v.model, options) {
+            Ok(d) => d,
+            Err(e) => {
+                self.out.warn(&format!(
+                    "model {} of plant {} from the store does not fit the plant file: {e}; model {old} stays",
+                    v.version, v.name
+                ));
+                return;
+            }
+        };
+        let at = if self.started && !self.blind {
+            let t = self.diagnoser.now();
+            diagnoser.start(t, &self.values);
+            format!(
+                "at {}: the diagnosers start again from the values read, with every clock unknown; flags raised stay raised",
+                self.out.writer.time.format(t)
+            )
+        } else {
+            "before the plant is seen".to_string()
+        };
+        eprintln!("monitor: model {} replaces {old} {at}", v.version);
+        self.diagnoser = diagnoser;
+        self.out.writer.model = Some(v.version);
     }
 
     /// A replay's deadline `d`, due on the live clock at `at`, has come.
@@ -707,6 +789,7 @@ async fn monitor(
         terminal,
         time: time_format,
         error: None,
+        model: config.models.as_ref().map(|m| m.version.clone()),
     };
     let confirmation = config.confirm.unwrap_or(plant.scan_period);
     let publisher = match &config.nats {
@@ -717,7 +800,11 @@ async fn monitor(
     out.probing = probing;
     out.publisher = publisher;
     let mut run = Run::new(diagnoser, out, config.speed);
-    let end = event_loop(&mut run, &mut rx, config, knows_ahead).await;
+    let mut versions = match &config.models {
+        Some(follow) => crate::jetstream::models::follow(follow.url.clone(), follow.plant.clone()),
+        None => mpsc::channel(1).1,
+    };
+    let end = event_loop(&mut run, &mut rx, &mut versions, config, knows_ahead).await;
     end_probe(&mut run, &mut rx).await;
     let result = match end {
         Ok(End::Stopped(stopped)) => finish(&mut run, stopped, knows_ahead),
@@ -771,6 +858,7 @@ async fn end_probe(run: &mut Run, rx: &mut mpsc::Receiver<Item>) {
 async fn event_loop(
     run: &mut Run,
     rx: &mut mpsc::Receiver<Item>,
+    versions: &mut mpsc::Receiver<crate::jetstream::models::Version>,
     config: &Config,
     knows_ahead: bool,
 ) -> Result<End, Failure> {
@@ -807,6 +895,11 @@ async fn event_loop(
                 }
             }
             _ = lag_check.tick(), if !knows_ahead => run.check_lag(config.max_lag),
+            Some(version) = versions.recv() => {
+                if let Some(follow) = &config.models {
+                    run.take_model(version, &follow.options);
+                }
+            }
             item = rx.recv(), if pending.is_none() => {
                 let Some(item) = item else {
                     return Ok(End::Stopped(None));
@@ -1081,6 +1174,7 @@ mod tests {
             terminal: false,
             time: f2.time,
             error: None,
+            model: None,
         };
         let out = Outputs::new(
             writer,
@@ -1164,6 +1258,7 @@ mod tests {
             duration: None,
             probe: None,
             nats: None,
+            models: None,
         };
         let output = lines.clone();
         let (plant, diagnoser) = (f2.plant.clone(), f2.diagnoser.clone());
