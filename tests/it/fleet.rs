@@ -93,6 +93,21 @@ fn by_plant<'a>(lines: impl Iterator<Item = &'a str>) -> BTreeMap<String, Vec<St
     by
 }
 
+/// Hands each line of `stdout` to `send`, on a thread of its own, until
+/// `send` says no more.
+fn forward(
+    stdout: std::process::ChildStdout,
+    mut send: impl FnMut(String) -> bool + Send + 'static,
+) {
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if !send(line) {
+                break;
+            }
+        }
+    });
+}
+
 /// A monitor per plant, replaying its slice at 5× and publishing it.
 fn monitors(dir: &Path, url: &str) -> Vec<Child> {
     PLANTS
@@ -142,13 +157,7 @@ fn a_killed_workers_plants_are_taken_over_and_the_lines_are_those_of_one_run() {
     for (i, w) in workers.iter_mut().enumerate() {
         let stdout = w.stdout.take().expect("a worker's stdout");
         let tx = tx.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send((i, line)).is_err() {
-                    break;
-                }
-            }
-        });
+        forward(stdout, move |line| tx.send((i, line)).is_ok());
     }
     let (killed, first) = rx
         .recv_timeout(Duration::from_secs(30))
@@ -315,13 +324,7 @@ fn a_new_model_in_the_store_is_taken_up_by_a_worker_and_a_monitor_between_two_me
         .expect("a monitor starts");
     let (tx, rx) = mpsc::channel();
     let stdout = worker.stdout.take().expect("the worker's stdout");
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
+    forward(stdout, move |line| tx.send(line).is_ok());
     let mut lines = vec![
         rx.recv_timeout(Duration::from_secs(30))
             .expect("the worker prints a line"),

@@ -210,39 +210,44 @@ pub async fn watch(
 }
 
 /// `gardefou learn --publish`: stores `bundle` as plant `name`'s model
-/// version on the server at `url`, in a runtime of its own.
+/// version on the server at `url`.
 pub fn publish(url: &str, name: &str, bundle: &Bundle) -> Result<(), Failure> {
     super::record::Subjects::of(name).map_err(|e| Failure::bad(format!("--nats-plant: {e}")))?;
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
-    runtime.block_on(async {
-        let js = connect(url).await?;
-        let io = |e: String| Failure::Io(format!("nats {url}: {e}"));
-        let store = store(&js).await.map_err(io)?;
-        put(&store, name, bundle).await.map_err(io)
+    with_store(url, async |store| {
+        put(&store, name, bundle)
+            .await
+            .map_err(|e| Failure::Io(format!("nats {url}: {e}")))
     })
 }
 
 /// `gardefou monitor --follow-models` without `--model`: plant `name`'s
-/// version in the store at `url` now, in a runtime of its own.
+/// version in the store at `url` now.
 pub fn fetch(url: &str, name: &str) -> Result<Version, Failure> {
+    with_store(url, async |store| match get(&store, name).await {
+        Ok(Some(v)) => Ok(v),
+        Ok(None) => Err(Failure::bad(format!(
+            "nats {url}: object store {BUCKET} has no model of plant {name} (publish one with `gardefou learn … --publish {url}`)"
+        ))),
+        Err(e) => Err(Failure::bad(e)),
+    })
+}
+
+/// Runs `f` on the store at `url`, in a runtime of its own (for the verbs
+/// that are not async).
+fn with_store<T>(
+    url: &str,
+    f: impl AsyncFnOnce(object_store::ObjectStore) -> Result<T, Failure>,
+) -> Result<T, Failure> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .map_err(|e| Failure::Io(format!("cannot start the runtime: {e}")))?;
     runtime.block_on(async {
         let js = connect(url).await?;
-        let io = |e: String| Failure::Io(format!("nats {url}: {e}"));
-        let store = store(&js).await.map_err(io)?;
-        match get(&store, name).await {
-            Ok(Some(v)) => Ok(v),
-            Ok(None) => Err(Failure::bad(format!(
-                "nats {url}: object store {BUCKET} has no model of plant {name} (publish one with `gardefou learn … --publish {url}`)"
-            ))),
-            Err(e) => Err(Failure::bad(e)),
-        }
+        let store = store(&js)
+            .await
+            .map_err(|e| Failure::Io(format!("nats {url}: {e}")))?;
+        f(store).await
     })
 }
 
