@@ -16,7 +16,7 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use crate::monitor_nats::{Server, messages, nats_server};
-use crate::support::{free_port, repo as path};
+use crate::support::{free_port, http_get, repo as path};
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
 /// The slice of each run: the faults show from 602.9 s.
@@ -296,8 +296,10 @@ fn a_new_model_in_the_store_is_taken_up_by_a_worker_and_a_monitor_between_two_me
     let first = learn_and_publish(&url, dir.path(), "m1", &[]);
 
     // A worker with no --plant serves the store's plants.
+    let http = free_port();
     let mut worker = Command::new(env!("CARGO_BIN_EXE_gardefou"))
         .args(["fleet", "--nats", &url, "--worker", "W"])
+        .args(["--http", &format!("127.0.0.1:{http}")])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -329,6 +331,24 @@ fn a_new_model_in_the_store_is_taken_up_by_a_worker_and_a_monitor_between_two_me
         rx.recv_timeout(Duration::from_secs(30))
             .expect("the worker prints a line"),
     ];
+    // The fleet view shows the plant served, with its model.
+    let status = http_get(http, "/status");
+    let body: serde_json::Value =
+        serde_json::from_str(&status[status.find("\r\n\r\n").expect("a body") + 4..])
+            .expect("JSON");
+    assert_eq!(body["plants"][0]["plant"], "a", "{status}");
+    assert_eq!(body["plants"][0]["served"], true, "{status}");
+    assert_eq!(body["plants"][0]["model"], first.as_str(), "{status}");
+    let metrics = http_get(http, "/metrics");
+    assert!(
+        metrics.contains("gardefou_fleet_plants{state=\"served\"} 1"),
+        "{metrics}"
+    );
+    assert!(
+        metrics.contains("gardefou_fleet_consumer_lag{plant=\"a\"}"),
+        "{metrics}"
+    );
+    assert!(http_get(http, "/").contains("<table"), "the page");
     // A new version while both run.
     let second = learn_and_publish(&url, dir.path(), "m2", &["--margin-rel", "0.2"]);
     assert_ne!(first, second, "two models, two versions");
@@ -339,6 +359,7 @@ fn a_new_model_in_the_store_is_taken_up_by_a_worker_and_a_monitor_between_two_me
     while let Ok(line) = rx.recv_timeout(Duration::from_secs(3)) {
         lines.push(line);
     }
+    let status = http_get(http, "/status");
     let _ = Command::new("kill")
         .args(["-TERM", &worker.id().to_string()])
         .status();
@@ -354,6 +375,10 @@ fn a_new_model_in_the_store_is_taken_up_by_a_worker_and_a_monitor_between_two_me
         "{worker_err}"
     );
     assert!(worker_err.contains(&replaced), "{worker_err}");
+    assert!(
+        status.contains(&format!("\"model\": \"{second}\"")),
+        "the view names the new model: {status}"
+    );
     let monitor_lines: Vec<String> = String::from_utf8_lossy(&monitored.stdout)
         .lines()
         .map(String::from)

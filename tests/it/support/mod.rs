@@ -70,6 +70,20 @@ pub fn free_port() -> u16 {
         .port()
 }
 
+/// `GET route` on loopback `port`, on a fresh connection: the whole response.
+pub fn http_get(port: u16, route: &str) -> String {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).expect("HTTP connects");
+    write!(
+        s,
+        "GET {route} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+    )
+    .expect("request");
+    let mut response = String::new();
+    s.read_to_string(&mut response).expect("response");
+    response
+}
+
 /// Waits (at most 10 s) until `what` listens on loopback `port`.
 pub fn wait_for_port(port: u16, what: &str) {
     let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
