@@ -17,6 +17,7 @@
 //! ```text
 //! cargo bench --bench fleet                 # 1000 plants, 60 s per round
 //! PLANTS=200 SECONDS=20 WORKERS="2" cargo bench --bench fleet
+//! STAGGER=1 KILL=0 cargo bench --bench fleet   # plants' clocks apart; no kill round
 //! ```
 //!
 //! Needs `nats-server` (`GARDEFOU_NATS_SERVER`, or on PATH; `scripts/test`
@@ -32,7 +33,7 @@ use datasets::inject::Injection;
 use datasets::sim::SimConfig;
 use datasets::sorting::simulate_in_memory;
 use diagnoser::{Event, MS, Plant, Time, TimeFormat};
-use runtime::jetstream::record::{EventWriter, Subjects};
+use runtime::jetstream::record::{EventWriter, Subjects, WATERMARK_SCANS};
 use runtime::monitor::source::Item;
 
 const MODEL: &str = "diagnoser/tests/fixtures/diagnosis/sorting-model.json";
@@ -132,6 +133,9 @@ fn spawn_worker(url: &str, names: &[String], plant: &Path, i: usize) -> (Child, 
         "--worker",
         &format!("w{i}"),
     ]);
+    if let Ok(every) = std::env::var("CHECKPOINT_EVERY") {
+        cmd.args(["--checkpoint-every", &every]);
+    }
     for n in names {
         cmd.arg("--plant")
             .arg(plant)
@@ -238,7 +242,7 @@ fn nats_server(store: &Path, port: u16) -> Server {
 
 /// Publishes every plant's messages on the wall clock from `t0`; gives
 /// the events published.
-fn publish(url: &str, plants: &[Published], t0: Instant) -> u64 {
+fn publish(url: &str, plants: &[Published], t0: Instant, period: Time) -> u64 {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -253,6 +257,18 @@ fn publish(url: &str, plants: &[Published], t0: Instant) -> u64 {
                 .expect("the streams");
         }
         let mut next = vec![0usize; plants.len()];
+        // With STAGGER=1, each plant's clock is shifted by a part of the
+        // watermark period: monitors started at different times, not in
+        // lockstep (all their watermarks within the same few ms).
+        let phase: Vec<Time> = (0..plants.len())
+            .map(|p| {
+                if env_or("STAGGER", 0u8) == 1 {
+                    (p as Time * 7_919 * MS / 10) % period
+                } else {
+                    0
+                }
+            })
+            .collect();
         let mut events = 0u64;
         let mut tick = tokio::time::interval(Duration::from_millis(5));
         loop {
@@ -262,7 +278,7 @@ fn publish(url: &str, plants: &[Published], t0: Instant) -> u64 {
             for (p, (name, msgs)) in plants.iter().enumerate() {
                 let subject = format!("gardefou.events.{name}");
                 while let Some((t, payload, n)) = msgs.get(next[p]) {
-                    if *t > now {
+                    if *t + phase[p] > now {
                         break;
                     }
                     client
@@ -291,6 +307,7 @@ fn round(
     plant_file: &Path,
     plants: &[Published],
     seconds: i64,
+    period: Time,
 ) {
     let store = tempfile::tempdir().expect("temp dir");
     let port = free_port();
@@ -338,7 +355,7 @@ fn round(
             }
         });
     }
-    let events = publish(&url, plants, t0);
+    let events = publish(&url, plants, t0, period);
     let published_in = t0.elapsed().as_secs_f64();
     let mut said = Vec::new();
     for (c, s) in children.iter_mut() {
@@ -405,9 +422,10 @@ fn main() {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for w in rounds {
-        round(w, false, &names, &plant_file, &plants, seconds);
-        if w > 1 {
-            round(w, true, &names, &plant_file, &plants, seconds);
+        let period = plant.scan_period * WATERMARK_SCANS;
+        round(w, false, &names, &plant_file, &plants, seconds, period);
+        if w > 1 && env_or("KILL", 1u8) == 1 {
+            round(w, true, &names, &plant_file, &plants, seconds, period);
         }
     }
 }

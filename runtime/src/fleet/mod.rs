@@ -891,6 +891,9 @@ async fn take(
     let first = held.run.lines + 1;
     let mut verdicts: Vec<Verdict> = Vec::new();
     held.run.take(seq, record, &mut |v| verdicts.push(v));
+    // The message's lines go out together, and each is printed once
+    // JetStream has it, in order: one round trip for them all.
+    let mut sent = Vec::new();
     for (i, v) in verdicts.iter().enumerate() {
         let number = first + i as u64;
         if number <= held.published {
@@ -900,7 +903,14 @@ async fn take(
             return Err(Trouble::Moved(why));
         }
         let line = fleet_line(v, held.time, &served.name, &served.version);
-        publish_line(shared, &served.name, number, &line).await?;
+        let ack = publish_line(shared, &served.name, number, &line).await?;
+        sent.push((number, line, ack));
+    }
+    for (number, line, ack) in sent {
+        tokio::time::timeout(Duration::from_secs(5), ack)
+            .await
+            .map_err(|_| "no acknowledgement of a verdict line".to_string())?
+            .map_err(|e| format!("publish: {e}"))?;
         held.published = number;
         print(shared, &line)?;
     }
@@ -930,12 +940,14 @@ pub fn fleet_line(v: &Verdict, time: TimeFormat, plant: &str, model: &str) -> St
     )
 }
 
+/// Sends verdict line `number` of `plant` to the fleet's stream; its
+/// acknowledgement to come.
 async fn publish_line(
     shared: &Shared,
     plant: &str,
     number: u64,
     line: &str,
-) -> Result<(), Trouble> {
+) -> Result<jetstream::context::PublishAckFuture, Trouble> {
     let mut headers = HeaderMap::new();
     headers.insert(LINE_HEADER, number.to_string().as_str());
     let id = format!("{}.{plant}.{number}", shared.names.fleet);
@@ -949,11 +961,7 @@ async fn publish_line(
         .send_publish(subject, message)
         .await
         .map_err(|e| format!("publish: {e}"))?;
-    tokio::time::timeout(Duration::from_secs(5), ack)
-        .await
-        .map_err(|_| "no acknowledgement of a verdict line".to_string())?
-        .map_err(|e| format!("publish: {e}"))?;
-    Ok(())
+    Ok(ack)
 }
 
 fn print(shared: &Shared, line: &str) -> Result<(), Trouble> {
