@@ -3,7 +3,7 @@
 //!
 //! Every worker writes its name in the bucket `gardefou-FLEET-workers`
 //! every [`lease::RENEW_EVERY`], whose entries live [`lease::TTL`], and reads
-//! the names there. A plant prefers the live worker with the highest
+//! the names there; a name stays alive [`GRACE`] after it was last listed. A plant prefers the live worker with the highest
 //! [`weight`] of (plant, worker): rendezvous hashing, so that the plants
 //! split evenly, and a worker joining or leaving moves only the plants it
 //! takes or leaves. A worker takes the plants it is preferred for; a plant
@@ -63,6 +63,7 @@ pub async fn keep(
     written: Arc<Mutex<Option<Instant>>>,
 ) {
     let mut tick = tokio::time::interval(lease::RENEW_EVERY);
+    let mut seen = Seen::default();
     loop {
         tick.tick().await;
         let at = Instant::now();
@@ -79,11 +80,8 @@ pub async fn keep(
         let Ok(keys) = bucket.keys().await else {
             continue;
         };
-        let mut names: Vec<String> = keys.filter_map(|k| async move { k.ok() }).collect().await;
-        if !names.contains(&me) {
-            names.push(me.clone());
-        }
-        names.sort();
+        let listed: Vec<String> = keys.filter_map(|k| async move { k.ok() }).collect().await;
+        let names = seen.list(&me, listed, Instant::now());
         live.send_if_modified(|old| {
             let changed = *old != names;
             *old = names;
@@ -92,11 +90,45 @@ pub async fn keep(
     }
 }
 
+/// How long a name missing from the bucket's listing still counts as
+/// alive: a listing made while a worker rewrites its name can miss it (the
+/// entry it would show is replaced meanwhile), and one miss must not hand
+/// that worker's plants to the others.
+pub const GRACE: Duration = Duration::from_millis(900);
+
+/// When each worker's name was last listed.
+#[derive(Debug, Default)]
+pub struct Seen(std::collections::BTreeMap<String, Instant>);
+
+impl Seen {
+    /// The live workers, sorted, after a listing of `listed` at `now`: those
+    /// listed, this worker `me`, and those listed less than [`GRACE`] ago.
+    pub fn list(&mut self, me: &str, listed: Vec<String>, now: Instant) -> Vec<String> {
+        for name in listed.into_iter().chain([me.to_string()]) {
+            self.0.insert(name, now);
+        }
+        self.0.retain(|_, at| now.duration_since(*at) < GRACE);
+        self.0.keys().cloned().collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use proptest::prelude::*;
 
     use super::*;
+
+    #[test]
+    fn a_name_missing_from_one_listing_stays_alive_for_the_grace() {
+        let mut seen = Seen::default();
+        let t0 = Instant::now();
+        let both = vec!["w0".to_string(), "w1".to_string()];
+        assert_eq!(seen.list("w0", both.clone(), t0), both);
+        let later = t0 + lease::RENEW_EVERY;
+        assert_eq!(seen.list("w0", vec!["w0".into()], later), both);
+        let gone = t0 + GRACE;
+        assert_eq!(seen.list("w0", Vec::new(), gone), ["w0".to_string()]);
+    }
 
     proptest! {
         /// A worker leaving moves only its own plants; the others keep theirs.
