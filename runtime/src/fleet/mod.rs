@@ -66,6 +66,8 @@ const STARTING: usize = 64;
 /// A plant's versions as its task sees them: the latest, or `None` once its
 /// model is removed from the store.
 type Versions = watch::Receiver<Option<Arc<Served>>>;
+/// The plants of the store served, each with the sender of its versions.
+type StorePlants = std::collections::HashMap<String, watch::Sender<Option<Arc<Served>>>>;
 /// The header with a fleet verdict line's number.
 pub const LINE_HEADER: &str = "Gardefou-Line";
 
@@ -347,8 +349,7 @@ async fn from_store(
     shared: Arc<Shared>,
     store: async_nats::jetstream::object_store::ObjectStore,
 ) -> Vec<Result<(), Failure>> {
-    let mut plants: std::collections::HashMap<String, watch::Sender<Option<Arc<Served>>>> =
-        std::collections::HashMap::new();
+    let mut plants = StorePlants::new();
     let mut tasks = tokio::task::JoinSet::new();
     let mut results = Vec::new();
     let mut stop = shared.stop.clone();
@@ -371,11 +372,16 @@ async fn from_store(
                     results.extend(done.ok());
                 }
                 change = changes.next() => match change {
-                    Some(Ok(Change::Stored(name))) => match models::get(&store, &name).await {
-                        Ok(Some(v)) => offer(&shared, &mut plants, &mut tasks, v),
-                        Ok(None) => {}
-                        Err(e) => eprintln!("warning: fleet: {e}; this version is not taken"),
-                    },
+                    Some(Ok(Change::Stored(name, version))) => {
+                        if held_already(&plants, &name, version.as_deref()) {
+                            continue;
+                        }
+                        match models::get(&store, &name).await {
+                            Ok(Some(v)) => offer(&shared, &mut plants, &mut tasks, v),
+                            Ok(None) => {}
+                            Err(e) => eprintln!("warning: fleet: {e}; this version is not taken"),
+                        }
+                    }
                     Some(Ok(Change::Removed(name))) => {
                         if let Some(tx) = plants.get(&name) {
                             tx.send_replace(None);
@@ -397,11 +403,24 @@ async fn from_store(
     results
 }
 
+/// Whether plant `name`'s task already has `version` (then the object is not
+/// read again, as when the store's watch starts over).
+fn held_already(plants: &StorePlants, name: &str, version: Option<&str>) -> bool {
+    plants
+        .get(name)
+        .filter(|tx| !tx.is_closed())
+        .is_some_and(|tx| {
+            tx.borrow()
+                .as_ref()
+                .is_some_and(|v| Some(v.version.as_str()) == version)
+        })
+}
+
 /// A version read from the store: to its plant's task, or a new task for a
 /// plant not served yet (or removed before).
 fn offer(
     shared: &Arc<Shared>,
-    plants: &mut std::collections::HashMap<String, watch::Sender<Option<Arc<Served>>>>,
+    plants: &mut StorePlants,
     tasks: &mut tokio::task::JoinSet<Result<(), Failure>>,
     v: Served,
 ) {
@@ -581,10 +600,8 @@ async fn hold(
     view(shared, key, |p| p.served = false);
     match outcome {
         Ok(Followed::Ended) | Ok(Followed::Stopped) => Ok(Some(())),
-        Ok(Followed::Removed) => {
-            eprintln!("fleet: {key}: its model was removed from the store; not served any more");
-            Ok(Some(()))
-        }
+        // The task's next look at its versions says so, and ends.
+        Ok(Followed::Removed) => Ok(None),
         Ok(Followed::HandedOver) => {
             eprintln!("fleet: {key}: handed over to the worker it prefers");
             Ok(None)

@@ -184,8 +184,10 @@ pub async fn get(store: &object_store::ObjectStore, name: &str) -> Result<Option
 /// A change in the store: a plant's new version, or its removal.
 #[derive(Debug)]
 pub enum Change {
-    /// A version was stored (or was there when watching began).
-    Stored(String),
+    /// A version was stored (or was there when watching began): the
+    /// plant's name, and the version its metadata names (read before the
+    /// object, so that a version already held is not read again).
+    Stored(String, Option<String>),
     /// The plant's model was removed.
     Removed(String),
 }
@@ -204,7 +206,8 @@ pub async fn watch(
         Ok(if info.deleted {
             Change::Removed(info.name)
         } else {
-            Change::Stored(info.name)
+            let version = info.metadata.get("version").cloned();
+            Change::Stored(info.name, version)
         })
     }))
 }
@@ -256,14 +259,16 @@ fn with_store<T>(
 const FOLLOW_RETRY: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// `monitor --follow-models`: every version of plant `name` stored at `url`
-/// from now on (and the one there now), read and checked, on a channel. The
+/// from now on (and the one there now, unless it is `version`, the one the
+/// monitor starts with), read and checked, on a channel. The
 /// task keeps trying while the broker is away: the monitor goes on with
 /// the version it has.
-pub fn follow(url: String, name: String) -> tokio::sync::mpsc::Receiver<Version> {
+pub fn follow(url: String, name: String, version: String) -> tokio::sync::mpsc::Receiver<Version> {
     let (tx, rx) = tokio::sync::mpsc::channel(4);
     tokio::spawn(async move {
+        let mut last = version;
         while !tx.is_closed() {
-            if let Err(e) = follow_once(&url, &name, &tx).await {
+            if let Err(e) = follow_once(&url, &name, &tx, &mut last).await {
                 eprintln!("warning: nats {url}: {e}; new models are not followed until it answers");
             }
             tokio::time::sleep(FOLLOW_RETRY).await;
@@ -276,6 +281,7 @@ async fn follow_once(
     url: &str,
     name: &str,
     tx: &tokio::sync::mpsc::Sender<Version>,
+    last: &mut String,
 ) -> Result<(), String> {
     let js = connect(url).await.map_err(|e| match e {
         Failure::BadInput(m) | Failure::Io(m) => m,
@@ -285,15 +291,18 @@ async fn follow_once(
     let mut changes = Box::pin(watch(&store).await?);
     while let Some(change) = changes.next().await {
         match change? {
-            Change::Stored(n) if n == name => match get(&store, name).await {
-                Ok(Some(v)) => {
-                    if tx.send(v).await.is_err() {
-                        return Ok(());
+            Change::Stored(n, version) if n == name && version.as_ref() != Some(last) => {
+                match get(&store, name).await {
+                    Ok(Some(v)) => {
+                        last.clone_from(&v.version);
+                        if tx.send(v).await.is_err() {
+                            return Ok(());
+                        }
                     }
+                    Ok(None) => {}
+                    Err(e) => eprintln!("warning: {e}; this version is not taken"),
                 }
-                Ok(None) => {}
-                Err(e) => eprintln!("warning: {e}; this version is not taken"),
-            },
+            }
             _ => {}
         }
     }

@@ -801,7 +801,11 @@ async fn monitor(
     out.publisher = publisher;
     let mut run = Run::new(diagnoser, out, config.speed);
     let mut versions = match &config.models {
-        Some(follow) => crate::jetstream::models::follow(follow.url.clone(), follow.plant.clone()),
+        Some(follow) => crate::jetstream::models::follow(
+            follow.url.clone(),
+            follow.plant.clone(),
+            follow.version.clone(),
+        ),
         None => mpsc::channel(1).1,
     };
     let end = event_loop(&mut run, &mut rx, &mut versions, config, knows_ahead).await;
