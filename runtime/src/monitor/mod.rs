@@ -899,7 +899,7 @@ async fn event_loop(
                 }
             }
             _ = lag_check.tick(), if !knows_ahead => run.check_lag(config.max_lag),
-            Some(version) = versions.recv() => {
+            Some(version) = versions.recv(), if config.models.is_some() => {
                 if let Some(follow) = &config.models {
                     run.take_model(version, &follow.options);
                 }
