@@ -14,7 +14,9 @@
 //! thread (`NAME_partwise_1`, the one-core figure) and on two
 //! (`NAME_partwise_2`).
 //!
-//! Run with `cargo bench --bench diagnose`.
+//! Run with `cargo bench --bench diagnose`. `HOURS=1000 cargo bench --bench
+//! diagnose` replays 1000 simulated hours instead of 100: the logs that
+//! `benches/diagnose.sh` replays end to end (seed 7), in memory.
 
 use std::hint::black_box;
 
@@ -28,8 +30,14 @@ use diagnoser::{MS, Plant, SECOND, Time, TimeFormat};
 use learning::learn::{LearnOptions, Learner};
 use logs::LogStream;
 
-/// Simulated hours of each replayed log.
-const HOURS: Time = 100;
+/// Simulated hours of each replayed log: `HOURS`, else 100.
+fn hours() -> Time {
+    std::env::var("HOURS")
+        .ok()
+        .and_then(|h| h.parse().ok())
+        .filter(|&h: &Time| h > 0)
+        .unwrap_or(100)
+}
 
 /// Simulates the sorting line for `duration` with `faults` (e.g. `F2@10min`).
 fn simulate(plant: &Plant, duration: Time, seed: u64, faults: &[&str]) -> MemorySink {
@@ -102,19 +110,20 @@ fn diagnose(c: &mut Criterion) {
     let plant = plant();
     let model = learn(&plant);
     let options = DiagnoserOptions::default();
+    let hours = hours();
     let logs = [
-        ("normal", simulate(&plant, HOURS * 3600 * SECOND, 7, &[])),
+        ("normal", simulate(&plant, hours * 3600 * SECOND, 7, &[])),
         (
             "f2_at_10min",
-            simulate(&plant, HOURS * 3600 * SECOND, 7, &["F2@10min"]),
+            simulate(&plant, hours * 3600 * SECOND, 7, &["F2@10min"]),
         ),
         (
             "f7_at_10min",
-            simulate(&plant, HOURS * 3600 * SECOND, 7, &["F7@10min"]),
+            simulate(&plant, hours * 3600 * SECOND, 7, &["F7@10min"]),
         ),
     ];
 
-    let mut group = c.benchmark_group(format!("diagnose_sorting_{HOURS}h"));
+    let mut group = c.benchmark_group(format!("diagnose_sorting_{hours}h"));
     group.sample_size(10);
     for (name, log) in &logs {
         let mut diagnoser =
@@ -123,7 +132,7 @@ fn diagnose(c: &mut Criterion) {
         // of it this log visits, so the samples measure the steady state.
         let verdicts = replay(&mut diagnoser, log);
         eprintln!(
-            "{name}: {} events over {HOURS} h, {verdicts} verdict change(s)",
+            "{name}: {} events over {hours} h, {verdicts} verdict change(s)",
             log.events.len()
         );
         group.throughput(Throughput::Elements(log.events.len() as u64));

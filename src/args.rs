@@ -21,7 +21,8 @@ pub struct ReplayArgs {
     pub model: PathBuf,
     /// Logs to replay (any form); each is replayed from its own initial values.
     /// A directory stands for the logs in it (`.csv`, `.parquet`, `.log`,
-    /// `.vcd`), by name.
+    /// `.vcd`), by name; a quoted file name with `*` or `?` for the files it
+    /// matches, by name (more than a command line holds).
     #[arg(required = true, value_name = "LOG")]
     pub logs: Vec<PathBuf>,
     /// Log form (default: detected from each file's header): events-csv,
@@ -67,7 +68,8 @@ impl ReplayArgs {
         self.end.map(|e| (e * unit.nanos() as f64).round() as Time)
     }
 
-    /// The log files, directories replaced by the logs in them.
+    /// The log files, directories and patterns replaced by the logs they
+    /// stand for.
     pub fn log_files(&self) -> Result<Vec<PathBuf>, Failure> {
         logs::expand_dirs(&self.logs).map_err(Failure::bad)
     }

@@ -7,10 +7,10 @@ use clap::Args;
 use diagnoser::diagnosis::{PartSummary, PartwiseReplay, PlantDiagnoser, Verdict, VerdictKind};
 use diagnoser::model::Model;
 use diagnoser::{Failure, Plant, TimeFormat};
-use indicatif::{ProgressBar, ProgressStyle};
 use logs::open_ahead;
 
 use crate::args::ReplayArgs;
+use crate::progress::LogsProgress;
 
 /// Arguments of `gardefou diagnose`.
 #[derive(Debug, Args)]
@@ -46,30 +46,14 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
     );
     let mut diagnoser = PartwiseReplay::new(diagnoser, threads);
     let ingest = replay.ingest(&plant);
-    let bar = if std::io::stderr().is_terminal() {
-        let bar = ProgressBar::new_spinner();
-        bar.set_style(
-            ProgressStyle::with_template(
-                "{spinner} diagnosing: {human_pos} events ({per_sec}) {msg}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-        );
-        bar
-    } else {
-        ProgressBar::hidden()
-    };
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
     let paths = replay.log_files()?;
     let several = paths.len() > 1;
-    let count = paths.len();
+    let mut progress = LogsProgress::new("diagnosing", paths.len());
     let mut summaries: Vec<(String, TimeFormat, Vec<PartSummary>)> = Vec::new();
-    let mut read = 0u64;
-    for (k, (path, stream)) in open_ahead(paths, &plant, &ingest).enumerate() {
+    for (path, stream) in open_ahead(paths, &plant, &ingest) {
         let stream = stream.map_err(Failure::bad)?;
-        if several {
-            bar.set_message(format!("log {} of {count}", k + 1));
-        }
         let time = stream.time;
         let name = path.display().to_string();
         let log = several.then_some(name.as_str());
@@ -84,6 +68,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
         };
         diagnoser.start(stream.start, &stream.initial);
         let mut last = stream.start;
+        let mut read = 0u64;
         for batch in stream.batches {
             let batch = batch.map_err(Failure::bad)?;
             diagnoser.push_batch(&batch, &mut emit);
@@ -91,8 +76,9 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
                 last = e.t;
             }
             read += batch.len() as u64;
-            bar.set_position(read);
+            progress.read(read);
         }
+        progress.log_done();
         let last = stream.end.extend(last, replay.end(&plant));
         let mut summary = diagnoser.finish(last, &mut emit);
         summary.push(diagnoser.plant_summary(last, &summary));
@@ -104,7 +90,7 @@ pub fn run(args: DiagnoseArgs) -> Result<(), Failure> {
         }
         summaries.push((name, time, summary));
     }
-    bar.finish_and_clear();
+    progress.finish();
     if args.summary {
         let colour = std::io::stdout().is_terminal() && std::env::var_os("NO_COLOR").is_none();
         write_summary(&mut out, &summaries, several, colour).map_err(Failure::output)?;

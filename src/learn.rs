@@ -1,20 +1,20 @@
 //! `gardefou learn`: learn one timed model per plant part from logs.
 
 use std::fs;
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::Args;
 use diagnoser::model::{Model, SensorKind};
 use diagnoser::output::write_file;
 use diagnoser::{Failure, Plant, Time, TimeUnit, time};
-use indicatif::{ProgressBar, ProgressStyle};
 use learning::conformance::deviations;
 use learning::graph::part_digraph;
 use learning::learn::{LearnOptions, Learner};
 use learning::suggest::{SuggestOptions, suggest_parts, to_toml};
 use logs::{IngestOptions, LogFormat, open};
 use runtime::jetstream::models::Bundle;
+
+use crate::progress::LogsProgress;
 
 /// Arguments of `gardefou learn`.
 #[derive(Debug, Args)]
@@ -24,7 +24,8 @@ pub struct LearnArgs {
     plant: PathBuf,
     /// Logs of normal operation (any form; several are combined). A
     /// directory stands for the logs in it (`.csv`, `.parquet`, `.log`,
-    /// `.vcd`), by name.
+    /// `.vcd`), by name; a quoted file name with `*` or `?` for the files it
+    /// matches, by name.
     #[arg(required = true, value_name = "LOG")]
     logs: Vec<PathBuf>,
     /// Where to write the model (`-`: standard output, the learning report then
@@ -110,8 +111,8 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         time_unit: args.time_unit.unwrap_or(plant.time_unit),
         ..IngestOptions::default()
     };
-    let bar = progress_bar();
     let paths = logs::expand_dirs(&args.logs).map_err(Failure::bad)?;
+    let mut progress = LogsProgress::new("learning", paths.len());
 
     if args.suggest_parts {
         let mut streams = Vec::new();
@@ -120,7 +121,7 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         }
         let suggestion = suggest_parts(&plant.signals, streams, &SuggestOptions::default())
             .map_err(Failure::bad)?;
-        bar.finish_and_clear();
+        progress.finish();
         print!("{}", to_toml(&suggestion, &plant.signals));
         return Ok(());
     }
@@ -134,20 +135,16 @@ pub fn run(args: LearnArgs) -> Result<(), Failure> {
         ..LearnOptions::default()
     };
     let mut learner = Learner::new(&plant, options).map_err(Failure::bad)?;
-    let mut total = 0u64;
     for (_, stream) in logs::open_ahead(paths, &plant, &ingest) {
         let stream = stream.map_err(Failure::bad)?;
-        let before = total;
         learner
-            .learn_log(stream, |n| {
-                bar.set_position(before + n);
-            })
+            .learn_log(stream, |n| progress.read(n))
             .map_err(Failure::bad)?;
-        total = bar.position();
+        progress.log_done();
     }
     let unassigned = learner.unassigned_sensors().join(", ");
     let model = learner.finish();
-    bar.finish_and_clear();
+    progress.finish();
 
     if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
         fs::create_dir_all(dir)
@@ -227,19 +224,6 @@ fn publish(url: &str, args: &LearnArgs, plant: &Plant, model_json: Vec<u8>) -> R
         );
     }
     Ok(())
-}
-
-fn progress_bar() -> ProgressBar {
-    if std::io::stderr().is_terminal() {
-        let bar = ProgressBar::new_spinner();
-        bar.set_style(
-            ProgressStyle::with_template("{spinner} learning: {human_pos} events ({per_sec})")
-                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-        );
-        bar
-    } else {
-        ProgressBar::hidden()
-    }
 }
 
 /// The learning report: per part and transition, the samples and the guard used.

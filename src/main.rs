@@ -17,6 +17,7 @@ mod fleet;
 mod interrupt;
 mod learn;
 mod monitor;
+mod progress;
 mod report;
 mod simulate;
 

@@ -493,3 +493,98 @@ fn a_model_learned_with_another_plant_file_is_refused() {
     );
     assert_eq!(err.lines().count(), 1, "{err}");
 }
+
+/// Runs `gardefou ARGS` on a pseudo-terminal (util-linux's `script`), as a
+/// user at a terminal would: what the terminal showed, and the exit status.
+fn on_terminal(args: &[&str], stdout: &Path) -> (String, bool) {
+    let quote = |a: &str| format!("'{}'", a.replace('\'', r"'\''"));
+    let mut line = quote(env!("CARGO_BIN_EXE_gardefou"));
+    for a in args {
+        line.push(' ');
+        line.push_str(&quote(a));
+    }
+    line.push_str(&format!(" > {}", quote(&stdout.display().to_string())));
+    let o = Command::new("script")
+        .args(["-qec", &line, "/dev/null"])
+        .env("COLUMNS", "120")
+        .output()
+        .expect("util-linux's script runs");
+    (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        o.status.success(),
+    )
+}
+
+#[test]
+fn several_logs_show_a_bar_over_the_logs_on_a_terminal_and_nothing_in_a_pipe() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let logs = dir.path().join("logs");
+    fs::create_dir_all(&logs).expect("logs dir");
+    for (i, run) in ["F1", "F2", "normal"].iter().enumerate() {
+        let from = data(&format!("sorting/{run}/events.csv"));
+        fs::copy(&from, logs.join(format!("{i}-{run}.csv"))).expect("copies a log");
+    }
+    let logs = logs.display().to_string();
+    let plant = plant();
+    let diagnose = ["diagnose", "--plant", &plant, "--model", model(), &logs];
+    let piped = gardefou(&diagnose);
+    assert!(
+        piped.status.success(),
+        "{}",
+        String::from_utf8_lossy(&piped.stderr)
+    );
+    assert!(
+        piped.stderr.is_empty(),
+        "stderr in a pipe: {}",
+        String::from_utf8_lossy(&piped.stderr)
+    );
+    let out = dir.path().join("verdicts.jsonl");
+    let (terminal, ok) = on_terminal(&diagnose, &out);
+    assert!(ok, "{terminal}");
+    assert!(
+        terminal.contains("diagnosing") && terminal.contains("/3 logs"),
+        "{terminal}"
+    );
+    let lines = fs::read(&out).expect("the verdict lines");
+    assert_eq!(
+        lines, piped.stdout,
+        "the same lines on a terminal as in a pipe"
+    );
+    assert!(!lines.is_empty());
+
+    // A quoted pattern stands for the files it matches, in name order.
+    let pattern = format!("{logs}/?-F*.csv");
+    let by_pattern = gardefou(&["diagnose", "--plant", &plant, "--model", model(), &pattern]);
+    let (f1, f2) = (format!("{logs}/0-F1.csv"), format!("{logs}/1-F2.csv"));
+    let named = gardefou(&["diagnose", "--plant", &plant, "--model", model(), &f1, &f2]);
+    assert!(
+        by_pattern.status.success(),
+        "{}",
+        String::from_utf8_lossy(&by_pattern.stderr)
+    );
+    assert_eq!(by_pattern.stdout, named.stdout);
+    assert!(String::from_utf8_lossy(&named.stdout).contains("1-F2.csv"));
+    let none = gardefou(&[
+        "diagnose",
+        "--plant",
+        &plant,
+        "--model",
+        model(),
+        &format!("{logs}/*.vcd"),
+    ]);
+    crate::support::assert_bad_input(&none, "no file matches");
+
+    let model_out = dir.path().join("m.json").display().to_string();
+    let learn = ["learn", "-q", "--plant", &plant, "-o", &model_out, &logs];
+    let piped = gardefou(&learn);
+    assert!(
+        piped.status.success() && piped.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&piped.stderr)
+    );
+    let (terminal, ok) = on_terminal(&learn, &dir.path().join("learn.out"));
+    assert!(
+        ok && terminal.contains("learning") && terminal.contains("/3 logs"),
+        "{terminal}"
+    );
+}
