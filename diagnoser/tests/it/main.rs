@@ -3,4 +3,5 @@
 mod diagnosis;
 mod faudes;
 mod faudes_product;
+mod fusion;
 mod partwise;
