@@ -67,11 +67,11 @@ fn messages(plant: &Plant, i: usize, span: Time) -> Vec<Message> {
         duration: WARM_UP + span,
         scan_period: plant.scan_period,
         seed: i as u64 + 1,
-        faults: vec![Injection {
-            label: fault.label.clone(),
-            template: fault.template.clone(),
-            onset: WARM_UP + span / 10 + (i as Time * 7_919 * MS) % (span * 7 / 10),
-        }],
+        faults: vec![Injection::new(
+            fault.label.clone(),
+            fault.template.clone(),
+            WARM_UP + span / 10 + (i as Time * 7_919 * MS) % (span * 7 / 10),
+        )],
     };
     let (log, _) = simulate_in_memory(&config).expect("a simulation");
     let mut writer = EventWriter::new(plant, TimeFormat::Numeric(plant.time_unit));

@@ -286,6 +286,7 @@ fn jobs(plant: &Plant, scenarios: &[Scenario], seeds: usize) -> Result<Vec<Job>,
             let spec = datasets::inject::FaultSpec {
                 what: s.label.clone(),
                 onset,
+                factor: None,
             };
             let fault = Injection::resolve(&spec, plant)?;
             for (m, &(_, coupling)) in MODES.iter().enumerate() {

@@ -1,7 +1,7 @@
 //! Fault injection: which fault, from when, and how it bends what the PLC reads
 //! and what the actuators do.
 
-use vocabulary::fault::FaultTarget;
+use vocabulary::fault::{Factor, FaultTarget};
 use vocabulary::{
     Event, FaultTemplate, MS, Plant, SECOND, SignalId, SignalKind, SignalTable, Time, TimeUnit,
     time,
@@ -13,13 +13,17 @@ use serde::Serialize;
 /// Width of the spurious pulse of `unexpected_rise` / `unexpected_fall`.
 pub const PULSE: Time = 50 * MS;
 
-/// A fault as asked for on the command line: `F2@600s` or `stuck1(C4)@10min`.
+/// A fault as asked for on the command line: `F2@600s` or `stuck1(C4)@10min`,
+/// and for a `slow` fault its factor after the onset: `F40@600s:x3`,
+/// `slow(P)@10min:x1.5` (×2 when none is given).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FaultSpec {
     /// A label of the plant file (`F2`) or a template (`stuck1(C4)`).
     pub what: String,
     /// Onset, from the start of the run.
     pub onset: Time,
+    /// How much slower a `slow` fault's motions are, if given.
+    pub factor: Option<Factor>,
 }
 
 impl std::str::FromStr for FaultSpec {
@@ -33,10 +37,22 @@ impl std::str::FromStr for FaultSpec {
                 "bad fault '{text}': missing fault label before '@'"
             ));
         }
+        let (at, factor) = match at.split_once(':') {
+            Some((at, factor)) => (
+                at,
+                Some(
+                    factor
+                        .parse()
+                        .map_err(|e| format!("bad fault '{text}': {e}"))?,
+                ),
+            ),
+            None => (at, None),
+        };
         let onset = time::parse_duration(at).map_err(|e| format!("bad fault '{text}': {e}"))?;
         Ok(FaultSpec {
             what: what.trim().to_string(),
             onset,
+            factor,
         })
     }
 }
@@ -50,6 +66,8 @@ pub struct Injection {
     pub template: FaultTemplate,
     /// From when.
     pub onset: Time,
+    /// How much slower a `slow` fault's motions are (`None` for the others).
+    pub factor: Option<Factor>,
 }
 
 impl Injection {
@@ -57,11 +75,7 @@ impl Injection {
     /// whose arguments name the plant's signals and elements.
     pub fn resolve(spec: &FaultSpec, plant: &Plant) -> Result<Injection, String> {
         if let Some(def) = plant.fault(&spec.what) {
-            return Ok(Injection {
-                label: def.label.clone(),
-                template: def.template.clone(),
-                onset: spec.onset,
-            });
+            return Injection::with_factor(def.label.clone(), def.template.clone(), spec);
         }
         let template: FaultTemplate = spec.what.parse().map_err(|e: String| {
             if spec.what.contains('(') {
@@ -102,6 +116,15 @@ impl Injection {
                     Some(_) => {}
                 }
             }
+            FaultTarget::Motion => {
+                let x = template.arguments()[0];
+                let element = plant.parts.iter().any(|p| p.element.as_deref() == Some(x));
+                if !element && kind(x) != Some(SignalKind::Actuator) {
+                    return Err(format!(
+                        "'{x}' in fault '{template}' is neither an element nor an actuator"
+                    ));
+                }
+            }
             FaultTarget::Element => {
                 let args = template.arguments();
                 let Some(part) = plant
@@ -124,11 +147,42 @@ impl Injection {
                 }
             }
         }
+        Injection::with_factor(spec.what.clone(), template, spec)
+    }
+
+    /// The injection of `template`, with the factor of `spec` where the
+    /// template is `slow` (and an error where it is not).
+    fn with_factor(
+        label: String,
+        template: FaultTemplate,
+        spec: &FaultSpec,
+    ) -> Result<Injection, String> {
+        let factor = match (&template, spec.factor) {
+            (FaultTemplate::Slow(_), f) => Some(f.unwrap_or(Factor::DEFAULT)),
+            (_, None) => None,
+            (_, Some(f)) => {
+                return Err(format!(
+                    "fault '{label}' ({template}) takes no factor ({f}): only slow faults do"
+                ));
+            }
+        };
         Ok(Injection {
-            label: spec.what.clone(),
+            label,
             template,
             onset: spec.onset,
+            factor,
         })
+    }
+
+    /// An injection of a fault that is not `slow` (no factor).
+    pub fn new(label: impl Into<String>, template: FaultTemplate, onset: Time) -> Injection {
+        let factor = matches!(template, FaultTemplate::Slow(_)).then_some(Factor::DEFAULT);
+        Injection {
+            label: label.into(),
+            template,
+            onset,
+            factor,
+        }
     }
 }
 
@@ -147,6 +201,9 @@ pub struct TruthEntry {
     pub showed: bool,
     /// The first scan where it did, in the log's time unit; `null` if never.
     pub showed_at: serde_json::Value,
+    /// A `slow` fault's factor (`3` for ×3); absent for the others.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub factor: Option<f64>,
 }
 
 /// The ground truth of a run, as written to `truth.json`: each fault and when
@@ -168,6 +225,7 @@ pub fn truth_json(
                 onset: time_value(f.onset, unit),
                 showed: at.is_some(),
                 showed_at: at.map_or(serde_json::Value::Null, |t| time_value(t, unit)),
+                factor: f.factor.map(Factor::get),
             }
         })
         .collect();

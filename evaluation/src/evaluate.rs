@@ -243,10 +243,12 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
     let onsets = onsets(seed, plant.faults.len(), settings);
     let faults: Vec<Injection> = chosen
         .iter()
-        .map(|&i| Injection {
-            label: plant.faults[i].label.clone(),
-            template: plant.faults[i].template.clone(),
-            onset: onsets[i],
+        .map(|&i| {
+            Injection::new(
+                plant.faults[i].label.clone(),
+                plant.faults[i].template.clone(),
+                onsets[i],
+            )
         })
         .collect();
     faulty_runs(&g, FAULT_SEED, &faults, settings.horizon, |run| {

@@ -19,10 +19,12 @@ fn branched_runs_are_the_runs_with_the_fault_from_the_start() {
     // Every fourth fault, so that every template and several onsets are tried.
     let faults: Vec<Injection> = (0..plant.faults.len())
         .step_by(4)
-        .map(|i| Injection {
-            label: plant.faults[i].label.clone(),
-            template: plant.faults[i].template.clone(),
-            onset: onsets[i],
+        .map(|i| {
+            Injection::new(
+                plant.faults[i].label.clone(),
+                plant.faults[i].template.clone(),
+                onsets[i],
+            )
         })
         .collect();
     let horizon = 120 * SECOND;
@@ -180,11 +182,7 @@ fn on_a_generated_plant_a_fault_after_an_unknown_episode_is_still_labelled() {
             .faults
             .iter()
             .filter(|f| f.template.to_string().starts_with("stuck"))
-            .map(|f| Injection {
-                label: f.label.clone(),
-                template: f.template.clone(),
-                onset,
-            })
+            .map(|f| Injection::new(f.label.clone(), f.template.clone(), onset))
             .collect();
         faulty_runs(&g, FAULT_SEED, &stuck, 300 * SECOND, |run| {
             let part_name = part_of(plant, &run.fault.template).expect("a part");

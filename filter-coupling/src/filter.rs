@@ -594,7 +594,7 @@ fn part_fallbacks(
 
 /// Whether the fault `label` stops `part` once declared: a stuck actuator of
 /// the part, its element blocked, or a fault of one of its sensors that has no
-/// temporal estimate (its edges follow the workpieces, not a command, so
+/// temporal estimate (a slow motion does not stop it) (its edges follow the workpieces, not a command, so
 /// nothing can stand in for its reading).
 fn stops_part(plant: &Plant, part: &Part, label: &str, estimates: &[Estimate]) -> bool {
     let own = |names: &[SignalId], s: &str| names.iter().any(|x| plant.signals.name(*x) == s);
@@ -614,6 +614,8 @@ fn stops_part(plant: &Plant, part: &Part, label: &str, estimates: &[Estimate]) -
                 | FaultTemplate::BlockedBetween { element, .. } => {
                     part.element.as_deref() == Some(element.as_str())
                 }
+                // A slow motion still ends: the part goes on, degraded.
+                FaultTemplate::Slow(_) => false,
             }
     })
 }

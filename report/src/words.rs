@@ -78,6 +78,16 @@ pub fn fault_meaning(plant: &Plant, label: &str) -> String {
             d(from),
             d(to)
         ),
+        FaultTemplate::Slow(x) if plant.parts.iter().any(|p| p.element.as_deref() == Some(x)) => {
+            format!(
+                "{x} slow: {} still moves, but its motions take longer than learned (a degraded element)",
+                element_words(plant, x)
+            )
+        }
+        FaultTemplate::Slow(a) => format!(
+            "{a} slow: what {a} ({}) drives still moves, but takes longer than learned",
+            d(a)
+        ),
     }
 }
 

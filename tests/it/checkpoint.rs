@@ -113,11 +113,7 @@ fn generated(seed: u64) -> Case {
         .iter()
         .take(2)
         .zip([1200, 2400])
-        .map(|(f, s)| Injection {
-            label: f.label.clone(),
-            template: f.template.clone(),
-            onset: s * SECOND,
-        })
+        .map(|(f, s)| Injection::new(f.label.clone(), f.template.clone(), s * SECOND))
         .collect();
     let (log, _) = g.simulate_in_memory(&config(7, faults)).expect("runs");
     Case::new(plant, model, log)

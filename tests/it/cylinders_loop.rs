@@ -40,6 +40,7 @@ fn run(
         let spec = FaultSpec {
             what: what.to_string(),
             onset,
+            factor: None,
         };
         Injection::resolve(&spec, &plant).expect("a fault of the rig")
     });

@@ -26,6 +26,7 @@ fn simulate(seed: u64, duration: i64, faults: &[(&str, i64)]) -> MemorySink {
                 &FaultSpec {
                     what: label.to_string(),
                     onset,
+                    factor: None,
                 },
                 &plant,
             )

@@ -293,6 +293,7 @@ fn run(coupling: Coupling, mode: Mode, seed: u64) -> (Stats, Filter) {
         &FaultSpec {
             what: "stuck1(C4)".into(),
             onset: 20 * MINUTE,
+            factor: None,
         },
         &plant,
     )

@@ -36,6 +36,7 @@ fn run(plant: &Plant, model: &Model, fault: &str, onset: Time, duration: Time) -
     let spec = FaultSpec {
         what: fault.to_string(),
         onset,
+        factor: None,
     };
     let fault = Injection::resolve(&spec, plant).expect("a fault of the plant");
     let run = LoopRun {

@@ -36,6 +36,12 @@ pub enum FaultTemplate {
         /// Sensor of the position it never reaches.
         to: String,
     },
+    /// `slow(x)`: element or actuator `x` still moves, but each of its motions
+    /// (a stroke, a flow, a heating) takes longer by a factor from the onset on:
+    /// a degraded element that slows down before it fails. The factor is the
+    /// injection's ([`Factor`]), not the template's: a diagnoser looks for any
+    /// slowdown.
+    Slow(String),
 }
 
 /// What a template is about.
@@ -47,6 +53,8 @@ pub enum FaultTarget {
     Actuator,
     /// A fault of a moving element.
     Element,
+    /// A fault of a motion: an element's, or what an actuator drives (`slow`).
+    Motion,
 }
 
 impl FaultTemplate {
@@ -61,6 +69,7 @@ impl FaultTemplate {
             FaultTemplate::ActuatorStuck1(_) => "actuator_stuck1",
             FaultTemplate::BlockedAt { .. } => "blocked_at",
             FaultTemplate::BlockedBetween { .. } => "blocked_between",
+            FaultTemplate::Slow(_) => "slow",
         }
     }
 
@@ -77,6 +86,7 @@ impl FaultTemplate {
             FaultTemplate::BlockedAt { .. } | FaultTemplate::BlockedBetween { .. } => {
                 FaultTarget::Element
             }
+            FaultTemplate::Slow(_) => FaultTarget::Motion,
         }
     }
 
@@ -106,6 +116,7 @@ impl FaultTemplate {
         match self {
             FaultTemplate::BlockedAt { element, at } => vec![element, at],
             FaultTemplate::BlockedBetween { element, from, to } => vec![element, from, to],
+            FaultTemplate::Slow(x) => vec![x],
             other => other.signal().into_iter().collect(),
         }
     }
@@ -161,6 +172,7 @@ impl FromStr for FaultTemplate {
             "unexpected_fall" => one(FaultTemplate::UnexpectedFall),
             "actuator_stuck0" => one(FaultTemplate::ActuatorStuck0),
             "actuator_stuck1" => one(FaultTemplate::ActuatorStuck1),
+            "slow" => one(FaultTemplate::Slow),
             "blocked_at" => {
                 want(2)?;
                 Ok(FaultTemplate::BlockedAt {
@@ -178,9 +190,80 @@ impl FromStr for FaultTemplate {
             }
             other => Err(format!(
                 "unknown fault template '{other}' (expected stuck0, stuck1, unexpected_rise, \
-                 unexpected_fall, actuator_stuck0, actuator_stuck1, blocked_at or blocked_between)"
+                 unexpected_fall, actuator_stuck0, actuator_stuck1, blocked_at, blocked_between or slow)"
             )),
         }
+    }
+}
+
+/// How much slower a `slow` fault makes its motions: a factor above 1, kept in
+/// thousandths so that an injection compares and prints exactly. Written `x3`
+/// or `x1.5` after an injection's onset (`F40@600s:x3`).
+///
+/// ```
+/// use vocabulary::fault::Factor;
+///
+/// let f: Factor = "x1.5".parse().unwrap();
+/// assert_eq!(f.get(), 1.5);
+/// assert_eq!(f.to_string(), "x1.5");
+/// assert!("x1".parse::<Factor>().is_err());
+/// assert!("x1000".parse::<Factor>().is_err());
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Factor(u32);
+
+impl Factor {
+    /// The factor a `slow` fault gets when its injection names none.
+    pub const DEFAULT: Factor = Factor(2000);
+    /// The largest factor: beyond it, the motion has stopped (`blocked_between`).
+    pub const MAX: Factor = Factor(100_000);
+
+    /// The factor.
+    pub fn get(self) -> f64 {
+        f64::from(self.0) / 1000.0
+    }
+
+    /// `d` made longer by the factor.
+    pub fn stretch(self, d: i64) -> i64 {
+        (i128::from(d) * i128::from(self.0) / 1000) as i64
+    }
+}
+
+impl fmt::Display for Factor {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (whole, frac) = (self.0 / 1000, self.0 % 1000);
+        if frac == 0 {
+            write!(f, "x{whole}")
+        } else {
+            let digits = format!("{frac:03}");
+            write!(f, "x{whole}.{}", digits.trim_end_matches('0'))
+        }
+    }
+}
+
+impl FromStr for Factor {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "bad factor '{text}': expected x and a number above 1 and at most 100, with at most 3 decimals, e.g. x1.5"
+            )
+        };
+        let number = text.trim().strip_prefix('x').ok_or_else(bad)?;
+        let (whole, frac) = number.split_once('.').unwrap_or((number, ""));
+        let digits = |s: &str| s.chars().all(|c| c.is_ascii_digit());
+        if whole.is_empty() || whole.len() > 3 || frac.len() > 3 || !digits(whole) || !digits(frac)
+        {
+            return Err(bad());
+        }
+        let whole: u32 = whole.parse().map_err(|_| bad())?;
+        let frac: u32 = format!("{frac:0<3}").parse().map_err(|_| bad())?;
+        let f = Factor(whole * 1000 + frac);
+        if f.0 <= 1000 || f > Factor::MAX {
+            return Err(bad());
+        }
+        Ok(f)
     }
 }
 
@@ -199,6 +282,7 @@ mod tests {
             "actuator_stuck1(A4)",
             "blocked_at(P, C4)",
             "blocked_between(P, C4, C5)",
+            "slow(P)",
         ] {
             let t: FaultTemplate = text.parse().expect("valid template");
             assert_eq!(t.to_string(), text);

@@ -1288,6 +1288,19 @@ impl Checker<'_> {
                 }
                 Ok(())
             }
+            FaultTarget::Motion => {
+                let x = t.arguments()[0];
+                let actuator = signals
+                    .id(x)
+                    .is_some_and(|id| signals.get(id).kind == SignalKind::Actuator);
+                if elements.contains_key(x) || actuator {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "'{x}' in {t} is neither an element (a part's `element`) nor an actuator"
+                    ))
+                }
+            }
         }
     }
 
@@ -1525,6 +1538,24 @@ fn default_faults(parts: &[Part], signals: &SignalTable) -> Vec<FaultDef> {
                 &mut out,
             );
         }
+        // A degraded motion: the element's, or else each order's.
+        match &part.element {
+            Some(e) => push(
+                format!("{e}.slow"),
+                FaultTemplate::Slow(e.clone()),
+                &mut out,
+            ),
+            None => {
+                for &a in &part.actuators {
+                    let n = signals.name(a).to_string();
+                    push(
+                        format!("{n}.slow"),
+                        FaultTemplate::Slow(n.clone()),
+                        &mut out,
+                    );
+                }
+            }
+        }
         if let Some(e) = &part.element {
             for &s in &part.drives {
                 let at = signals.name(s).to_string();
@@ -1571,7 +1602,7 @@ fn default_partitions(
         let name = match (&f.template, f.template.target()) {
             (FaultTemplate::BlockedAt { element, .. }, _)
             | (FaultTemplate::BlockedBetween { element, .. }, _) => element.clone(),
-            (t, FaultTarget::Actuator) => {
+            (t, FaultTarget::Actuator | FaultTarget::Motion) => {
                 let a = t.arguments()[0];
                 parts
                     .iter()

@@ -278,6 +278,7 @@ fn with_fault(
     let spec = FaultSpec {
         what: label.to_string(),
         onset,
+        factor: None,
     };
     let injection = Injection::resolve(&spec, g.plant()).expect("a declared fault");
     let config = config(g, 5, duration, vec![injection]);

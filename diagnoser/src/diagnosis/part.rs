@@ -2006,6 +2006,8 @@ fn mode_kind(
                 drives,
             }
         }
+        // Not modelled yet: the part's diagnoser has no mode for it.
+        FaultTemplate::Slow(_) => return None,
         _ => return None,
     })
 }

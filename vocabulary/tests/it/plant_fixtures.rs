@@ -108,14 +108,16 @@ fn without_faults_every_template_is_generated() {
         "A4.actuator_stuck1",
         "P.blocked_at.C4",
         "P.blocked_between.C5.C4",
+        "P.slow",
     ] {
         assert!(labels.contains(&want), "{want} missing from {labels:?}");
     }
-    // 4 per sensor, 2 per actuator, 2 blocked_at, 2 blocked_between.
-    assert_eq!(plant.faults.len(), 4 * 2 + 2 + 2 + 2);
+    // 4 per sensor, 2 per actuator, 2 blocked_at, 2 blocked_between, 1 slow.
+    assert_eq!(plant.faults.len(), 4 * 2 + 2 + 2 + 2 + 1);
     let names: Vec<&str> = plant.partitions.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(names, ["C4", "C5", "P"]);
-    // Actuator faults join the part's element.
+    // Actuator faults and a slow element join the part's element.
+    assert!(plant.partition_of("P.slow").is_some_and(|p| p.name == "P"));
     assert!(
         plant
             .partition_of("A4.actuator_stuck0")
