@@ -906,6 +906,10 @@ impl PartLearner {
         // Per sensor: (interval name, value) over all actuator states.
         let mut per_sensor: Vec<Vec<(String, &'static str)>> = vec![Vec::new(); sensors];
         let mut estimable = vec![true; sensors];
+        // Whether the sensor changed after some command: one that never did
+        // (a limit switch never reached while learning) has no temporal
+        // estimate, and the filter reads it as possibly anything.
+        let mut moved = vec![false; sensors];
         let mut next_name = 1;
         for (act, accs) in &self.est {
             // Each estimable sensor: initial value, then uncertain windows.
@@ -952,6 +956,7 @@ impl PartLearner {
             let mut sensor_rows = Vec::new();
             for (s, sched) in schedules.iter().enumerate() {
                 let Some((v0, windows)) = sched else { continue };
+                moved[s] |= !windows.is_empty();
                 let values: Vec<&'static str> = bounds
                     .iter()
                     .map(|&from| {
@@ -982,8 +987,14 @@ impl PartLearner {
                 sensors: sensor_rows,
             });
         }
+        for s in (0..sensors).filter(|&s| estimable[s] && !moved[s]) {
+            untimed.push(format!(
+                "estimate of {}: it never changed after a command in the logs",
+                self.names[self.n_act + s]
+            ));
+        }
         let sensor_estimates = (0..sensors)
-            .filter(|&s| estimable[s] && !per_sensor[s].is_empty())
+            .filter(|&s| estimable[s] && moved[s] && !per_sensor[s].is_empty())
             .map(|s| {
                 let ones: Vec<&str> = per_sensor[s]
                     .iter()

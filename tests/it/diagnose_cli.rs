@@ -97,10 +97,23 @@ fn f2_turns_ambiguous_then_certain() {
     assert_eq!(last["verdict"], "certain");
     assert_eq!(labels(last), ["F2"]);
     assert_eq!(last["flags"], serde_json::json!(["def_C4"]));
+    // Certain once normal after a glitch is ruled out and F2 has explained
+    // the turntable for its longest learned motion; RE(C5) ruled F5 out
+    // before, with normal after a glitch still beside F2, and no flag.
     assert!(
         last["reason"]
             .as_str()
-            .is_some_and(|r| r.starts_with("RE(C5)"))
+            .is_some_and(|r| r.starts_with("confirmed: normal after a glitch")),
+        "{last}"
+    );
+    let before = &turntable[turntable.len() - 2];
+    assert_eq!(labels(before), ["N", "F2"]);
+    assert_eq!(before["flags"], serde_json::json!([]));
+    assert!(
+        before["reason"]
+            .as_str()
+            .is_some_and(|r| r.starts_with("RE(C5)")),
+        "{before}"
     );
     // The plant view agrees.
     let plant = all

@@ -25,6 +25,7 @@ mod filter_cli;
 mod filter_st;
 mod fleet;
 mod learn_cli;
+mod learned_models;
 mod monitor_can;
 mod monitor_cli;
 mod monitor_nats;

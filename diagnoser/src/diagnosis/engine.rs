@@ -39,6 +39,24 @@ pub struct Labels {
     pub flags: u32,
     /// Partitions holding at least one remaining mode.
     pub suspects: u32,
+    /// Normal after a transient glitch also explains the observations
+    /// (the run's glitch watch, not a hypothesis of the automaton): the
+    /// verdict is `{N, modes…}`, ambiguous, and raises no `def_` flag.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub glitch: bool,
+}
+
+impl Labels {
+    /// These labels with normal after a glitch beside them: no flag yet.
+    pub(crate) fn with_glitch(&self) -> Labels {
+        Labels {
+            normal: false,
+            modes: self.modes.clone(),
+            flags: 0,
+            suspects: self.suspects,
+            glitch: true,
+        }
+    }
 }
 
 /// A state of the diagnoser automaton.
@@ -388,6 +406,17 @@ impl Restarted {
         self.clocks = 0;
     }
 
+    /// Puts the restarted clocks' origins back in `origins`: the clocks as
+    /// they were before the step.
+    pub(crate) fn undo(&self, origins: &mut Origins) {
+        let mut left = self.clocks;
+        while left != 0 {
+            let c = left.trailing_zeros() as usize % CLOCK_ROOM;
+            origins.at[c] = self.before[c];
+            left &= left - 1;
+        }
+    }
+
     /// Restarts `clocks` at `t`, keeping their origins before.
     #[inline(always)]
     fn restart(&mut self, clocks: u64, origins: &mut Origins, t: Time) {
@@ -522,6 +551,7 @@ impl Engine {
                 modes: Vec::new(),
                 flags: 0,
                 suspects: 0,
+                glitch: false,
             };
         }
         let mut modes: Vec<u16> = hyps.iter().map(|h| h.mode).collect();
@@ -541,6 +571,7 @@ impl Engine {
             modes,
             flags,
             suspects,
+            glitch: false,
         }
     }
 

@@ -62,6 +62,10 @@ impl LabelSet {
 struct Deviation {
     /// No modelled fault explains it.
     unknown: bool,
+    /// Normal after a glitch still explains it too (`N` among its labels,
+    /// left out of `labels`): it neither rules labels out nor needs
+    /// explaining.
+    tentative: bool,
     /// Its labels, in the verdict's order.
     labels: Vec<u32>,
     set: LabelSet,
@@ -165,11 +169,16 @@ impl Coordinator {
         if verdict.verdict == VerdictKind::Normal {
             return None;
         }
-        let labels: Vec<u32> = verdict.labels.iter().map(|l| self.id(l)).collect();
+        let tentative = verdict.labels.iter().any(|l| l == "N");
+        let labels: Vec<u32> = (verdict.labels.iter())
+            .filter(|l| *l != "N")
+            .map(|l| self.id(l))
+            .collect();
         let mut set = LabelSet::default();
         labels.iter().for_each(|&l| set.insert(l));
         Some(Deviation {
             unknown: is_unknown(verdict),
+            tentative,
             labels,
             set,
         })
@@ -256,19 +265,27 @@ impl Coordinator {
     fn judge(&mut self) -> Judged {
         let mut known = Vec::new();
         let mut unknown = Vec::new();
+        let mut tentative = Vec::new();
         for (i, d) in self.deviations.iter().enumerate() {
             match d {
                 Some(d) if d.unknown => unknown.push(i),
+                Some(d) if d.tentative => tentative.push(i),
                 Some(_) => known.push(i),
                 None => {}
             }
         }
-        let labels = if known.is_empty() && unknown.is_empty() {
-            None
-        } else if known.is_empty() {
+        let labels = if !known.is_empty() {
+            Some(self.candidates(&known))
+        } else if !tentative.is_empty() {
+            // Every deviation may be a glitch: normal stays a candidate.
+            let mut ids = vec![self.id("N")];
+            ids.extend(self.candidates(&tentative));
+            known = tentative;
+            Some(ids)
+        } else if !unknown.is_empty() {
             Some(vec![self.id(UNKNOWN_LABEL)])
         } else {
-            Some(self.candidates(&known))
+            None
         };
         let suspects = match &labels {
             Some(ids) if !known.is_empty() => self.suspects(ids),
@@ -315,6 +332,10 @@ impl Coordinator {
     /// The partitions of the candidates `ids` when they are faults, in the
     /// plant's order, as indices; raises `def_` when they all lie in one.
     fn suspects(&mut self, ids: &[u32]) -> Vec<usize> {
+        let (normal, ids) = match ids.split_first() {
+            Some((&l, rest)) if self.names[l as usize] == "N" => (true, rest),
+            _ => (false, ids),
+        };
         let faulty = ids
             .first()
             .is_some_and(|&l| !matches!(self.names[l as usize].as_str(), "N" | UNKNOWN_LABEL));
@@ -330,7 +351,9 @@ impl Coordinator {
                 suspects.push(p);
             }
         }
+        // Normal after a glitch among the candidates: no fault is certain.
         if let Some(&p) = suspects.first()
+            && !normal
             && ids.iter().all(|&l| of(l) == Some(p))
         {
             let flag = Flag::def(self.partition_order[p].as_str()).to_string();

@@ -9,6 +9,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::engine::{Engine, NEVER, Origins, Restarted, UNEXPLAINED};
+use super::part::Hypothesis;
 use super::run::PartSummary;
 use super::snapshot::PartSnapshot;
 use super::verdict::{UNKNOWN_LABEL, Verdict, VerdictKind};
@@ -33,19 +34,111 @@ struct RunState {
     detected: Option<Time>,
     /// The unknown episode the part is in, if any.
     episode: Option<Episode>,
+    /// Normal after a glitch, followed since the normal hypothesis died,
+    /// until a fault is confirmed or the part is back to normal.
+    watch: Option<Watch>,
+    /// When time alone next changes the state of the part's own automaton
+    /// (`next_timer` also counts the watch's).
+    main_timer: Time,
     /// The outcome ([`Engine::outcome`]) of a step with nothing to report:
-    /// the labels shown, while no episode is under way; else none.
+    /// the labels shown, while no episode nor watch is under way; else none.
     quiet: u32,
 }
 
 impl RunState {
-    /// What [`RunState::quiet`] is, from the labels shown and the episode.
+    /// What [`RunState::quiet`] is, from the labels shown, the episode and
+    /// the watch.
     fn quiet(&self) -> u32 {
-        match self.episode {
-            None => self.shown,
-            Some(_) => u32::MAX,
+        match (self.episode, &self.watch) {
+            (None, None) => self.shown,
+            _ => u32::MAX,
         }
     }
+}
+
+/// Normal after a transient glitch, beside the fault hypotheses, from the
+/// moment an observation rules the normal hypothesis out.
+///
+/// Elimination alone is no evidence: one unexplained edge (a splash on a level
+/// switch) rules normal out, and later edges may rule every fault out but one
+/// that nothing confirmed. So the part also follows a shadow run: it waits
+/// while the glitch may still show (`glitch_max`), then starts from what the
+/// part reads, normal, with the clocks that the part's edges restarted
+/// meanwhile unknown (a glitch's edges date nothing). While that shadow
+/// lives, the verdict is `{N, faults…}`, ambiguous, with no `def_` flag. It
+/// ends one of two ways:
+/// - **back to normal**: the shadow runs a learned cycle (back in the first
+///   learned state it was in, after leaving it), or explains what no fault
+///   does; the part then goes on from the shadow;
+/// - **ruled out**: the shadow dies (a deadline, an edge normal never makes
+///   there, or readings in a state the model never saw for longer than a
+///   glitch shows), and the faults left explained what it could not: they
+///   stand on their own, `certain` with their flag where they lie in one
+///   partition.
+#[derive(Debug, Clone)]
+pub(crate) struct Watch {
+    /// When the normal hypothesis died.
+    since: Time,
+    /// Normal after the glitch, while it lives.
+    shadow: Option<Shadow>,
+    /// When the shadow died.
+    ruled_out: Option<Time>,
+}
+
+/// The shadow run of a [`Watch`]: normal restarted after a glitch.
+#[derive(Debug, Clone)]
+struct Shadow {
+    /// Its state in the part's automaton.
+    state: u32,
+    /// When its clocks restarted.
+    origins: Origins,
+    /// Its next deadline ([`NEVER`]: none).
+    timer: Time,
+    /// Since when the readings are in a state the model never saw.
+    unseen_since: Option<Time>,
+    /// The learned cycle that brings the part back to normal.
+    cycle: Episode,
+    /// It has run that cycle.
+    back: bool,
+    /// While the glitch may still show (for `glitch_max` after the
+    /// unexplained step), `state` and `origins` are the part's just before
+    /// that step, and this says until when, from when, and what the part
+    /// read then (see [`PartRun::end_glitch`]).
+    pending: Option<Pending>,
+}
+
+/// The glitch window of a [`Shadow`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub(crate) struct Pending {
+    /// When the glitch is over, at the latest.
+    until: Time,
+    /// When normal was ruled out.
+    at: Time,
+    /// What the part read just before.
+    obs: u32,
+}
+
+/// A [`Watch`] as data, in a [`PartSnapshot`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub(crate) struct WatchSnapshot {
+    since: Time,
+    ruled_out: Option<Time>,
+    /// The shadow, while it lives.
+    shadow: Option<ShadowSnapshot>,
+    /// The part's own automaton's next deadline.
+    main_timer: Option<Time>,
+}
+
+/// A [`Shadow`] as data.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+struct ShadowSnapshot {
+    /// Its hypotheses (while pending, the part's before the glitch).
+    hypotheses: Vec<Hypothesis>,
+    origins: Vec<Option<Time>>,
+    timer: Option<Time>,
+    unseen_since: Option<Time>,
+    cycle: Episode,
+    pending: Option<Pending>,
 }
 
 /// An unknown episode: from observations that no mode of the part explains
@@ -107,11 +200,13 @@ pub(crate) struct PartRun {
     /// Scratch readings.
     before: Vec<Option<Time>>,
     after: Vec<Option<Time>>,
+    /// Longest a glitch shows (see [`super::DiagnoserOptions::glitch_max`]).
+    glitch_max: Time,
 }
 
 impl PartRun {
     /// A part's run, not started.
-    pub(crate) fn new(engine: Engine, unit: TimeUnit, polled: bool) -> Self {
+    pub(crate) fn new(engine: Engine, unit: TimeUnit, polled: bool, glitch_max: Time) -> Self {
         PartRun {
             engine,
             at: RunState {
@@ -124,6 +219,8 @@ impl PartRun {
                 last_command: None,
                 detected: None,
                 episode: None,
+                watch: None,
+                main_timer: NEVER,
                 quiet: u32::MAX,
             },
             unit,
@@ -133,6 +230,7 @@ impl PartRun {
             before_at: Time::MIN,
             before: Vec::new(),
             after: Vec::new(),
+            glitch_max,
         }
     }
 
@@ -156,6 +254,8 @@ impl PartRun {
             last_command: None,
             detected: None,
             episode: None,
+            watch: None,
+            main_timer: NEVER,
             quiet: shown,
         };
         self.changes = 0;
@@ -175,6 +275,19 @@ impl PartRun {
             last_command: run.last_command,
             detected: run.detected,
             episode: run.episode,
+            watch: run.watch.as_ref().map(|w| WatchSnapshot {
+                since: w.since,
+                ruled_out: w.ruled_out,
+                shadow: w.shadow.as_ref().map(|sh| ShadowSnapshot {
+                    hypotheses: e.state(sh.state).hyps.to_vec(),
+                    origins: sh.origins.to_vec(),
+                    timer: (sh.timer != NEVER).then_some(sh.timer),
+                    unseen_since: sh.unseen_since,
+                    cycle: sh.cycle,
+                    pending: sh.pending,
+                }),
+                main_timer: (run.main_timer != NEVER).then_some(run.main_timer),
+            }),
             changes: self.changes,
         }
     }
@@ -214,18 +327,61 @@ impl PartRun {
         let Some(origins) = Origins::from_slice(part.clocks.len(), &s.origins) else {
             return fail("the clocks");
         };
+        let watch = match &s.watch {
+            None => None,
+            Some(w) => {
+                let shadow = match &w.shadow {
+                    None => None,
+                    Some(sh) => {
+                        let origins = Origins::from_slice(part.clocks.len(), &sh.origins);
+                        let hyps = &sh.hypotheses;
+                        let fits = !hyps.is_empty()
+                            && sh.pending.is_none_or(|p| vector(p.obs))
+                            && hyps.windows(2).all(|w| w[0] < w[1])
+                            && hyps
+                                .iter()
+                                .all(|h| vector(h.phys) && (h.mode as usize) < modes);
+                        let (Some(origins), true) = (origins, fits) else {
+                            return fail("the glitch watch's hypotheses or clocks");
+                        };
+                        let obs = sh.pending.map_or(s.obs, |p| p.obs);
+                        let state = e.intern(obs, hyps.clone());
+                        Some(Shadow {
+                            state,
+                            origins,
+                            timer: sh.timer.unwrap_or(NEVER),
+                            unseen_since: sh.unseen_since,
+                            cycle: sh.cycle,
+                            back: false,
+                            pending: sh.pending,
+                        })
+                    }
+                };
+                Some(Watch {
+                    since: w.since,
+                    shadow,
+                    ruled_out: w.ruled_out,
+                })
+            }
+        };
         let state = e.intern(s.obs, s.hypotheses.clone());
         let shown = e.intern_labels(s.shown.clone());
+        let next_timer = s.next_timer.unwrap_or(NEVER);
         self.at = RunState {
             state,
             obs: s.obs,
             origins,
             flags: s.flags,
             shown,
-            next_timer: s.next_timer.unwrap_or(NEVER),
+            next_timer,
             last_command: s.last_command,
             detected: s.detected,
             episode: s.episode,
+            main_timer: match &s.watch {
+                Some(w) => w.main_timer.unwrap_or(NEVER),
+                None => next_timer,
+            },
+            watch,
             quiet: u32::MAX,
         };
         self.at.quiet = self.at.quiet();
@@ -256,10 +412,18 @@ impl PartRun {
         self.undo.clear();
         self.before_at = at;
         let previous = self.at.state;
-        let step = self.engine.fire_at(self.at.state, &self.at.origins, at);
-        (self.at.state, self.at.next_timer) = (step.state, step.timer);
+        let mut outcome = self.engine.outcome(previous);
+        if self.at.main_timer <= at {
+            let step = self.engine.fire_at(self.at.state, &self.at.origins, at);
+            (self.at.state, self.at.main_timer) = (step.state, step.timer);
+            self.at.next_timer = step.timer;
+            outcome = step.outcome;
+        }
+        if self.at.watch.is_some() {
+            self.watch_time(at, at - 1);
+        }
         // The deadline itself is the last moment the event could still have come.
-        self.settle(at - 1, previous, None, step.outcome)
+        self.settle(at - 1, previous, None, outcome)
     }
 
     /// The part's scan at `t` changed the bits `changed` (not 0); every
@@ -274,6 +438,9 @@ impl PartRun {
         } else {
             self.step(t, changed)
         };
+        if self.at.watch.is_some() {
+            self.watch_scan(t, changed);
+        }
         self.settle(t, previous, Some((obs_before, changed)), outcome)
     }
 
@@ -313,6 +480,7 @@ impl PartRun {
             .engine
             .scan_step(run.state, changed, &mut run.origins, t, &mut self.undo);
         (run.state, run.next_timer) = (step.state, step.timer);
+        run.main_timer = step.timer;
         run.obs ^= changed;
         let acts = self.engine.part.actuator_mask();
         if changed & acts != 0 {
@@ -385,12 +553,19 @@ impl PartRun {
         scan: Option<(u32, u32)>,
         unknown: bool,
     ) -> Option<Verdict> {
+        if self.at.watch.is_some() {
+            return self.settle_watch(t, previous, scan, unknown);
+        }
         if unknown {
             let v = self.report(t, previous, scan, None);
             self.start_again(t);
             return v;
         }
         let Some(mut episode) = self.at.episode else {
+            if !self.is_normal() && self.engine.labels(self.at.shown).normal {
+                self.start_watch(t, previous, scan);
+                return self.settle_watch(t, previous, scan, false);
+            }
             return self.report(t, previous, scan, None);
         };
         if !self.is_normal() {
@@ -433,6 +608,224 @@ impl PartRun {
         run.episode = Some(episode);
     }
 
+    /// The labels the part shows: its automaton's, with normal after a
+    /// glitch beside them while a [`Watch`] is under way.
+    fn labels_now(&mut self) -> u32 {
+        let id = self.engine.state(self.at.state).labels;
+        let labels = self.engine.labels(id);
+        if self.at.watch.is_none() || labels.normal || labels.modes.is_empty() {
+            return id;
+        }
+        let glitch = labels.with_glitch();
+        self.engine.intern_labels(glitch)
+    }
+
+    /// Starts a [`Watch`] after the step from `previous` (`scan`: what the
+    /// part read before it, and what changed), shown at `shown`: a shadow
+    /// run that waits while the glitch may still show.
+    fn start_watch(&mut self, shown: Time, previous: u32, scan: Option<(u32, u32)>) {
+        let t = self.before_at;
+        let mut origins = self.at.origins.clone();
+        self.undo.undo(&mut origins);
+        let obs = scan.map_or(self.at.obs, |(before, _)| before);
+        self.at.watch = Some(Watch {
+            since: shown,
+            shadow: Some(Shadow {
+                state: previous,
+                origins,
+                timer: NEVER,
+                unseen_since: None,
+                cycle: Episode {
+                    since: shown,
+                    anchor: None,
+                    left: false,
+                },
+                back: false,
+                pending: Some(Pending {
+                    until: t.saturating_add(self.glitch_max),
+                    at: shown,
+                    obs,
+                }),
+            }),
+            ruled_out: None,
+        });
+        self.update_timer();
+    }
+
+    /// The watch's shadow takes the scan at `t` that changed `changed`.
+    #[cold]
+    fn watch_scan(&mut self, t: Time, changed: u32) {
+        if let Some(sh) = self.at.watch.as_mut().and_then(|w| w.shadow.as_mut())
+            && sh.pending.is_none()
+        {
+            let mut undo = Restarted::default();
+            let step = (self.engine).scan_step(sh.state, changed, &mut sh.origins, t, &mut undo);
+            (sh.state, sh.timer) = (step.state, step.timer);
+        }
+        self.judge_shadow(t, t);
+    }
+
+    /// Once the glitch is over (`at`), the shadow is normal as the part was
+    /// before it, moved by what the glitch changed for good as one step at
+    /// the moment normal was ruled out: a glitch only hides or fakes edges
+    /// for a while, so the part must read what normal operation could have
+    /// made of it by then.
+    fn end_glitch(&mut self, at: Time) {
+        let obs = self.at.obs;
+        let Some(sh) = self.at.watch.as_mut().and_then(|w| w.shadow.as_mut()) else {
+            return;
+        };
+        let Some(p) = sh.pending.take() else {
+            return;
+        };
+        let changed = obs ^ p.obs;
+        if changed != 0 {
+            let mut undo = Restarted::default();
+            let step = (self.engine).scan_step(sh.state, changed, &mut sh.origins, p.at, &mut undo);
+            sh.state = step.state;
+        }
+        sh.timer = self.engine.next_timer(sh.state, &sh.origins, p.at);
+        while sh.timer <= at {
+            let step = self.engine.fire_at(sh.state, &sh.origins, sh.timer);
+            if (step.state, step.timer) == (sh.state, sh.timer) {
+                break;
+            }
+            (sh.state, sh.timer) = (step.state, step.timer);
+        }
+    }
+
+    /// Time passes to `at` for the watch's shadow (`shown`: the time
+    /// verdicts give it, `at - 1` for a deadline).
+    #[cold]
+    fn watch_time(&mut self, at: Time, shown: Time) {
+        if let Some(sh) = self.at.watch.as_mut().and_then(|w| w.shadow.as_mut()) {
+            if sh.pending.is_some_and(|p| p.until <= at) {
+                self.end_glitch(at);
+            } else if sh.pending.is_none() {
+                while sh.timer <= at {
+                    let step = self.engine.fire_at(sh.state, &sh.origins, sh.timer);
+                    if (step.state, step.timer) == (sh.state, sh.timer) {
+                        break;
+                    }
+                    (sh.state, sh.timer) = (step.state, step.timer);
+                }
+            }
+        }
+        self.judge_shadow(at, shown);
+    }
+
+    /// Rules the shadow out at `t` (`shown` in verdicts) if normal no longer
+    /// explains the part, or the readings have been in a state the model
+    /// never saw for longer than a glitch shows; else notes whether it ran
+    /// its cycle.
+    fn judge_shadow(&mut self, t: Time, shown: Time) {
+        let (engine, obs) = (&self.engine, self.at.obs);
+        let Some(w) = self.at.watch.as_mut() else {
+            return;
+        };
+        if let Some(sh) = w.shadow.as_mut().filter(|sh| sh.pending.is_none()) {
+            let part = &engine.part;
+            let learned = part.model_state(obs).is_some();
+            sh.unseen_since = if learned {
+                None
+            } else {
+                Some(sh.unseen_since.unwrap_or(t))
+            };
+            let normal = engine.labels(engine.state(sh.state).labels).normal;
+            let unseen_too_long = sh.unseen_since.is_some_and(|u| t - u > self.glitch_max);
+            if !normal || unseen_too_long {
+                w.shadow = None;
+                w.ruled_out = Some(shown);
+            } else if sh.cycle.cycled(part.motion(obs), learned) {
+                sh.back = true;
+            }
+        }
+        self.update_timer();
+    }
+
+    /// The next time anything of the part changes with time alone: its
+    /// automaton's deadline, or the watch's.
+    fn update_timer(&mut self) {
+        let run = &mut self.at;
+        let mut next = run.main_timer;
+        if let Some(sh) = run.watch.as_ref().and_then(|w| w.shadow.as_ref()) {
+            next = next.min(sh.pending.map_or(sh.timer, |p| p.until));
+            if let Some(u) = sh.unseen_since {
+                next = next.min(u.saturating_add(self.glitch_max + 1));
+            }
+        }
+        run.next_timer = next;
+    }
+
+    /// A step under a [`Watch`]: back to normal, confirmed, or the labels
+    /// with normal after a glitch beside them.
+    fn settle_watch(
+        &mut self,
+        t: Time,
+        previous: u32,
+        scan: Option<(u32, u32)>,
+        unknown: bool,
+    ) -> Option<Verdict> {
+        let unit = self.unit;
+        let time = |x: Time| format!("{} {}", unit.format(x), unit.name());
+        let w = self.at.watch.as_ref()?;
+        let since = w.since;
+        let verdict = match (&w.shadow, w.ruled_out) {
+            (Some(sh), _) if sh.back || unknown => {
+                let sh = self.at.watch.take().and_then(|w| w.shadow)?;
+                (self.at.state, self.at.origins, self.at.main_timer) =
+                    (sh.state, sh.origins, sh.timer);
+                let part = &self.engine.part;
+                let reason = if unknown {
+                    format!(
+                        "back to normal: a glitch at {}, then what no fault explains and normal does",
+                        time(since)
+                    )
+                } else {
+                    format!(
+                        "back to normal: a glitch at {}, then {} in state {} again after a cycle that the model explains",
+                        time(since),
+                        part.name,
+                        part.describe(self.at.obs)
+                    )
+                };
+                self.report(t, previous, scan, Some(reason))
+            }
+            (Some(_), _) => self.report(t, previous, scan, None).map(|mut v| {
+                v.reason.push_str(&format!(
+                    "; or normal after a glitch at {}: no def_ flag while it explains the part",
+                    time(since)
+                ));
+                v
+            }),
+            (None, _) if unknown => {
+                self.at.watch = None;
+                let v = self.report(t, previous, scan, None);
+                self.start_again(t);
+                v
+            }
+            (None, ruled_out) => {
+                // Normal after a glitch could not explain what the faults
+                // left do: they stand on their own now, flags included.
+                self.at.watch = None;
+                let r = ruled_out.unwrap_or(since);
+                self.report(t, previous, scan, None).map(|mut v| {
+                    if v.reason.is_empty() {
+                        v.reason = "no other change".to_string();
+                    }
+                    v.reason.push_str(&format!(
+                        "; normal after a glitch at {} ruled out at {}",
+                        time(since),
+                        time(r)
+                    ));
+                    v
+                })
+            }
+        };
+        self.update_timer();
+        verdict
+    }
+
     /// The verdict at `t` if the labels changed since the last one given;
     /// `reason` replaces the diagnoser's own.
     fn report(
@@ -442,8 +835,8 @@ impl PartRun {
         scan: Option<(u32, u32)>,
         reason: Option<String>,
     ) -> Option<Verdict> {
+        let now = self.labels_now();
         let (engine, run) = (&self.engine, &mut self.at);
-        let now = engine.state(run.state).labels;
         if now == run.shown {
             return None;
         }
@@ -500,10 +893,8 @@ impl PartRun {
         } else if labels.modes.is_empty() {
             vec![UNKNOWN_LABEL.to_string()]
         } else {
-            labels
-                .modes
-                .iter()
-                .map(|&m| part.modes[m as usize].label.clone())
+            (labels.glitch.then(|| "N".to_string()).into_iter())
+                .chain((labels.modes.iter()).map(|&m| part.modes[m as usize].label.clone()))
                 .collect()
         };
         let verdict = if labels.normal {

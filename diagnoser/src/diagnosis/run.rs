@@ -109,7 +109,12 @@ impl PlantDiagnoser {
             } else {
                 built
             });
-            parts.push(PartRun::new(engine, model.time_unit, options.polled));
+            parts.push(PartRun::new(
+                engine,
+                model.time_unit,
+                options.polled,
+                options.glitch_max,
+            ));
         }
         let routes = Routes::new(plant, &parts);
         let coordinator = Coordinator::new(

@@ -33,7 +33,7 @@ use serde::{Deserialize, Serialize};
 
 use super::engine::Labels;
 use super::part::Hypothesis;
-use super::part_run::Episode;
+use super::part_run::{Episode, WatchSnapshot};
 use super::run::PlantDiagnoser;
 use super::verdict::Verdict;
 use crate::Time;
@@ -67,6 +67,9 @@ pub struct PartSnapshot {
     pub(crate) last_command: Option<(u32, u32)>,
     pub(crate) detected: Option<Time>,
     pub(crate) episode: Option<Episode>,
+    /// Normal after a glitch, while it is followed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) watch: Option<WatchSnapshot>,
     pub(crate) changes: u64,
 }
 

@@ -378,9 +378,10 @@ impl SensorEstimate {
     /// assert_eq!(c4.intervals(), ["I1", "I2", "I9", "I10"]);
     /// ```
     pub fn intervals(&self) -> Vec<&str> {
+        // `0`, the empty union: the sensor is 0 whatever the time.
         (self.expr.split('|'))
             .map(str::trim)
-            .filter(|s| !s.is_empty())
+            .filter(|s| !s.is_empty() && *s != "0")
             .collect()
     }
 }
