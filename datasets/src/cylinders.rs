@@ -37,6 +37,7 @@
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 use vocabulary::expr::Expr;
+use vocabulary::fault::Factor;
 use vocabulary::{FaultTemplate, MS, Plant, SignalId, Time};
 
 use crate::sim::{Controller, Damage, Physics};
@@ -187,6 +188,11 @@ impl CylinderIds {
 }
 
 /// The cylinder after `k` in the flow, i.e. the one at the corner `k` pushes to.
+/// The index of rod `element` (V1 is 0).
+fn rod_of(element: &str) -> Option<usize> {
+    ["V1", "V2", "V3", "V4"].iter().position(|&v| v == element)
+}
+
 fn next(k: usize) -> usize {
     (k + 1) % CYLINDERS
 }
@@ -209,6 +215,8 @@ struct Rod {
     /// Speed of the current stroke, position units per ns.
     speed: f64,
     block: Option<Block>,
+    /// How much slower its strokes are, from a `slow` fault's onset on.
+    slow: Option<Factor>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -251,6 +259,7 @@ impl CylinderRig {
             order: false,
             speed: 0.0,
             block: None,
+            slow: None,
         };
         let mut rig = CylinderRig {
             plant,
@@ -345,10 +354,11 @@ impl CylinderRig {
                 rod.speed = 1.0 / (Self::draw_ms(rng, range) * MS as f64);
             }
             let old = rod.r;
+            let speed = rod.slow.map_or(rod.speed, |f| rod.speed / f.get());
             let mut new = if order {
-                (old + rod.speed * dt).min(1.0)
+                (old + speed * dt).min(1.0)
             } else {
-                (old - rod.speed * dt).max(0.0)
+                (old - speed * dt).max(0.0)
             };
             match &mut rod.block {
                 Some(Block::At { retracted }) => {
@@ -503,17 +513,9 @@ impl Physics for CylinderRig {
             | FaultTemplate::BlockedBetween { element, .. } => element,
             other => return Err(format!("{other} is not an element fault")),
         };
-        let k = match element.as_str() {
-            "V1" => 0,
-            "V2" => 1,
-            "V3" => 2,
-            "V4" => 3,
-            other => {
-                return Err(format!(
-                    "the cylinder rig has no element {other} (rods are V1 to V4)"
-                ));
-            }
-        };
+        let k = rod_of(element).ok_or_else(|| {
+            format!("the cylinder rig has no element {element} (rods are V1 to V4)")
+        })?;
         let names =
             |ids: &[usize; CYLINDERS]| self.plant.signals.name(SignalId(ids[k] as u32)).to_string();
         let (s0, s1) = (names(&self.ids.retracted), names(&self.ids.extended));
@@ -545,6 +547,22 @@ impl Physics for CylinderRig {
             }
             other => return Err(format!("the cylinder rig cannot simulate {other}")),
         });
+        Ok(())
+    }
+
+    fn inject_slow(&mut self, x: &str, factor: Factor) -> Result<(), String> {
+        // A rod, or the valve Q9 to Q12 that drives it.
+        let k = rod_of(x)
+            .or_else(|| {
+                self.ids
+                    .extend
+                    .iter()
+                    .position(|&a| self.plant.signals.name(SignalId(a as u32)) == x)
+            })
+            .ok_or_else(|| {
+                format!("the cylinder rig has no rod or valve {x} (V1 to V4, Q9 to Q12)")
+            })?;
+        self.rods[k].slow = Some(factor);
         Ok(())
     }
 

@@ -3,6 +3,7 @@
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use vocabulary::fault::Factor;
 use vocabulary::{FaultTemplate, Plant, Time};
 
 use crate::inject::{Injection, SensorInjector};
@@ -44,6 +45,15 @@ pub trait Physics {
     /// Starts an element fault (`blocked_at`, `blocked_between`) now. Errors name
     /// what this plant cannot simulate.
     fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String>;
+
+    /// Starts a `slow` fault now: from here on, the motions of `x` (an
+    /// element, or what an actuator drives) take `factor` times longer.
+    /// Errors name what this plant cannot simulate.
+    fn inject_slow(&mut self, x: &str, factor: Factor) -> Result<(), String> {
+        Err(format!(
+            "this simulator cannot make slow({x}) ({factor}): its motions have fixed speeds"
+        ))
+    }
 
     /// Throughput counters for the report (e.g. boxes delivered on each side).
     fn counters(&self) -> Vec<(String, u64)>;
@@ -161,7 +171,7 @@ where
 pub struct Stepper {
     rng: ChaCha8Rng,
     injector: SensorInjector,
-    /// Element faults not started yet, latest first.
+    /// Element and motion faults not started yet, latest first.
     pending_elements: Vec<Injection>,
     /// What the PLC sees and orders in the current scan.
     io: Vec<bool>,
@@ -231,9 +241,13 @@ impl Stepper {
         while self.pending_elements.last().is_some_and(|f| f.onset <= t) {
             if let Some(f) = self.pending_elements.pop() {
                 // Checked by `Injection::resolve`; a refusal here is a simulator bug.
-                physics
-                    .inject_element_fault(&f.template)
-                    .map_err(std::io::Error::other)?;
+                match &f.template {
+                    FaultTemplate::Slow(x) => {
+                        physics.inject_slow(x, f.factor.unwrap_or(Factor::DEFAULT))
+                    }
+                    template => physics.inject_element_fault(template),
+                }
+                .map_err(std::io::Error::other)?;
             }
         }
         physics.advance(t, &self.physical, &mut self.rng, &mut self.report.damage);

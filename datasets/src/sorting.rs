@@ -17,6 +17,7 @@
 
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
+use vocabulary::fault::Factor;
 use vocabulary::{FaultTemplate, MS, Plant, SignalId, Time};
 
 use crate::sim::{Controller, Damage, MemorySink, Physics, SimConfig, SimReport};
@@ -164,6 +165,24 @@ struct Motion {
 }
 
 impl Motion {
+    /// The rest of the motion from `t` on, `factor` times slower.
+    fn slowed(self, t: Time, factor: Factor) -> Motion {
+        let p = self.position(t);
+        let departing = t < self.t1;
+        Motion {
+            t0: t,
+            p0: p,
+            t1: if departing {
+                t + factor.stretch(self.t1 - t)
+            } else {
+                t
+            },
+            p1: if departing { self.p1 } else { p },
+            speed: self.speed / factor.get(),
+            ..self
+        }
+    }
+
     fn position(&self, t: Time) -> f64 {
         if t <= self.t0 {
             self.p0
@@ -232,6 +251,12 @@ pub struct SortingLine {
     /// Whether the turntable moved in the last step.
     moved: bool,
     block: Option<Block>,
+    /// Per actuator (A0 to A6), how much slower what it drives moves: the
+    /// turntable for A4, a conveyor or the rollers for the others.
+    slow: [Option<Factor>; 7],
+    /// A slowdown of the turntable that began during its motion, to apply
+    /// to that motion at the next step.
+    slowing: Option<Factor>,
     last_t: Option<Time>,
     /// Pairs of boxes in contact at the end of the last step.
     contacts: Vec<(u64, u64)>,
@@ -262,6 +287,8 @@ impl SortingLine {
             a4: false,
             moved: false,
             block: None,
+            slow: [None; 7],
+            slowing: None,
             last_t: None,
             contacts: Vec::new(),
             arrived: 0,
@@ -343,6 +370,10 @@ impl SortingLine {
         };
         let leave = Self::uniform_ms(rng, leave);
         let reach = Self::uniform_ms(rng, reach).max(leave + MS);
+        let (leave, reach) = match self.slow[4] {
+            Some(f) => (f.stretch(leave), f.stretch(reach)),
+            None => (leave, reach),
+        };
         let speed = (P5 - P4) / (reach - leave) as f64;
         self.motion = Some(if in_zone {
             Motion {
@@ -405,45 +436,25 @@ impl SortingLine {
 
     /// Speed of a box given what supports its centre.
     fn velocity(&self, b: &Carton, act: &[bool]) -> f64 {
-        let v = self.config.speed;
-        let a = |i: usize| act[self.ids.a[i]];
-        let rollers = match (a(2), a(3)) {
-            (true, false) => v,
-            (false, true) => -v,
+        // What actuator `i` drives moves at this speed while it is on.
+        let v = |i: usize| match self.slow[i] {
+            _ if !act[self.ids.a[i]] => 0.0,
+            Some(f) => self.config.speed / f.get(),
+            None => self.config.speed,
+        };
+        let rollers = match (act[self.ids.a[2]], act[self.ids.a[3]]) {
+            (true, false) => v(2),
+            (false, true) => -v(3),
             _ => 0.0,
         };
         let c = b.centre();
         match b.frame {
-            Frame::Loading if c < FEED_END => {
-                if a(0) {
-                    v
-                } else {
-                    0.0
-                }
-            }
-            Frame::Loading if c < INTER_END => {
-                if a(1) {
-                    v
-                } else {
-                    0.0
-                }
-            }
+            Frame::Loading if c < FEED_END => v(0),
+            Frame::Loading if c < INTER_END => v(1),
             Frame::Loading => rollers,
             Frame::Table => rollers,
-            Frame::Unloading if c >= HALF => {
-                if a(5) {
-                    v
-                } else {
-                    0.0
-                }
-            }
-            Frame::Unloading if c < -HALF => {
-                if a(6) {
-                    -v
-                } else {
-                    0.0
-                }
-            }
+            Frame::Unloading if c >= HALF => v(5),
+            Frame::Unloading if c < -HALF => -v(6),
             Frame::Unloading => rollers,
         }
     }
@@ -667,6 +678,9 @@ impl Physics for SortingLine {
             return;
         };
         // The orders in `act` were written at `last` and have acted since.
+        if let Some(f) = self.slowing.take() {
+            self.motion = self.motion.map(|m| m.slowed(last, f));
+        }
         self.turntable_order(last, act[self.ids.a[4]], rng);
         let dt = (t - last) as f64 / 1e9;
         self.move_boxes(t, dt, act, damage);
@@ -725,6 +739,23 @@ impl Physics for SortingLine {
             }
             other => return Err(format!("the sorting line cannot simulate {other}")),
         });
+        Ok(())
+    }
+
+    fn inject_slow(&mut self, x: &str, factor: Factor) -> Result<(), String> {
+        // The turntable P is what A4 drives.
+        let a = match x {
+            "P" => 4,
+            _ => (0..7)
+                .find(|&i| self.plant.signals.name(SignalId(self.ids.a[i] as u32)) == x)
+                .ok_or_else(|| {
+                    format!("the sorting line has no element or actuator {x} (P, A0 to A6)")
+                })?,
+        };
+        self.slow[a] = Some(factor);
+        if a == 4 {
+            self.slowing = Some(factor);
+        }
         Ok(())
     }
 

@@ -14,7 +14,7 @@ use datasets::inject::Injection;
 use datasets::sim::{Controller, Damage, MemorySink, Physics, ScanSink, SimConfig};
 use datasets::sorting::{SortingConfig, SortingLine};
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, Verdict};
-use diagnoser::fault::FaultTarget;
+use diagnoser::fault::{Factor, FaultTarget};
 use diagnoser::model::Model;
 use diagnoser::{Event, FaultTemplate, Plant, SignalId, Time, TimeFormat, TimeUnit};
 use filter_coupling::filter::{Coupling, Filter, Mode, Request};
@@ -291,12 +291,16 @@ impl Rig {
     /// Whether the rig's simulator can make `fault`; if not, why. Sensor and
     /// actuator faults are made on the signals; an element fault needs an
     /// element and the sensors at its ends (a rod is not blocked "at" a
-    /// presence sensor).
+    /// presence sensor); a slow one, an element or actuator whose motions
+    /// the simulator times.
     pub fn simulates(self, fault: &FaultTemplate) -> Result<(), String> {
-        if fault.target() != FaultTarget::Element {
-            return Ok(());
+        match fault {
+            FaultTemplate::Slow(x) => Watched::new(self, 0).inject_slow(x, Factor::DEFAULT),
+            _ if fault.target() == FaultTarget::Element => {
+                Watched::new(self, 0).inject_element_fault(fault)
+            }
+            _ => Ok(()),
         }
-        Watched::new(self, 0).inject_element_fault(fault)
     }
 
     /// What a unit of work is, for tables.
@@ -420,6 +424,9 @@ impl Physics for Watched {
     fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String> {
         self.machine.physics_mut().inject_element_fault(template)
     }
+    fn inject_slow(&mut self, x: &str, factor: Factor) -> Result<(), String> {
+        self.machine.physics_mut().inject_slow(x, factor)
+    }
     fn counters(&self) -> Vec<(String, u64)> {
         self.machine.physics().counters()
     }
@@ -528,4 +535,22 @@ fn simulate(
         probes,
         no_probe,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Rig;
+
+    #[test]
+    fn the_rigs_simulate_the_slow_motions_they_time() {
+        let slow = |x: &str| format!("slow({x})").parse().expect("a template");
+        for x in ["P", "A4", "A0"] {
+            assert_eq!(Rig::Sorting.simulates(&slow(x)), Ok(()), "{x}");
+        }
+        for x in ["V1", "Q12"] {
+            assert_eq!(Rig::Cylinders.simulates(&slow(x)), Ok(()), "{x}");
+        }
+        assert!(Rig::Sorting.simulates(&slow("V1")).is_err());
+        assert!(Rig::Cylinders.simulates(&slow("P")).is_err());
+    }
 }

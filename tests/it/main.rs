@@ -38,5 +38,6 @@ mod report_browser;
 mod report_cli;
 mod shipped_datasets;
 mod simulate_cli;
+mod slow_turntable;
 mod st;
 mod virtual_plc;

@@ -531,3 +531,32 @@ fn csc4_priority_matters_with_a_single_object() {
         report.damage
     );
 }
+
+#[test]
+fn a_slow_rod_strokes_factor_times_slower_from_the_onset() {
+    let onset = 30 * SECOND;
+    // Time from each RE(Q9) to the next RE(Se1): a stroke out, 0.9 to 1.1 s.
+    let strokes = |sink: &MemorySink, from: Time| -> Vec<Time> {
+        let out = rises(sink, "Se1");
+        rises(sink, "Q9")
+            .into_iter()
+            .filter(|&t| t >= from)
+            .filter_map(|t| out.iter().find(|&&s| s > t).map(|&s| s - t))
+            .collect()
+    };
+    for fault in ["slow(V1)@30s:x3", "slow(Q9)@30s:x3"] {
+        let (_, sink) = simulate(180 * SECOND, 7, &[fault]);
+        let after = strokes(&sink, onset);
+        assert!(!after.is_empty(), "{fault}: no stroke after the onset");
+        for d in after {
+            // 0.98 of a stroke of 0.9 to 1.1 s, three times slower, to a scan.
+            assert!(
+                (2600 * MS..=3260 * MS).contains(&d),
+                "{fault}: {} ms",
+                d / MS
+            );
+        }
+        let (_, normal) = simulate(180 * SECOND, 7, &[]);
+        assert!(strokes(&normal, 0).iter().all(|&d| d <= 1100 * MS));
+    }
+}

@@ -263,3 +263,44 @@ fn unknown_faults_are_refused_with_the_known_labels() {
     let spec: FaultSpec = "stuck1(C44)@1s".parse().expect("well-formed");
     assert!(Injection::resolve(&spec, &plant()).is_err());
 }
+
+/// The time from each RE(A4) to the next RE(C5), for orders given from `from` on.
+fn turns_to_unloading(sink: &MemorySink, from: Time) -> Vec<Time> {
+    let p = plant();
+    let (a4, c5) = (p.signals.id("A4"), p.signals.id("C5"));
+    let mut order = None;
+    let mut turns = Vec::new();
+    for e in &sink.events {
+        if Some(e.signal) == a4 && e.value {
+            order = Some(e.t).filter(|&t| t >= from);
+        } else if Some(e.signal) == c5
+            && e.value
+            && let Some(t0) = order.take()
+        {
+            turns.push(e.t - t0);
+        }
+    }
+    turns
+}
+
+#[test]
+fn a_slow_turntable_turns_factor_times_slower_from_the_onset() {
+    let onset = 600 * SECOND;
+    for (fault, lo, hi) in [
+        ("slow(P)@600s:x2", 5780, 5900),
+        ("slow(A4)@600s:x1.5", 4335, 4425),
+        ("slow(P)@600s", 5780, 5900),
+    ] {
+        let (report, s) = simulate(1200 * SECOND, 7, &[fault], SynthesisedControl::new);
+        let before = turns_to_unloading(&s, 0);
+        assert!(before.iter().take(3).all(|&d| d <= 2960 * MS), "{before:?}");
+        let after = turns_to_unloading(&s, onset);
+        assert!(after.len() > 5, "{fault}: {after:?}");
+        for d in after {
+            assert!((lo * MS..=hi * MS).contains(&d), "{fault}: {} ms", d / MS);
+        }
+        assert_eq!(report.damage, vec![], "{fault}");
+    }
+    let spec: FaultSpec = "slow(C4)@1s".parse().expect("well-formed");
+    assert!(Injection::resolve(&spec, &plant()).is_err());
+}

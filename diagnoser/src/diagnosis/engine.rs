@@ -168,6 +168,18 @@ impl StateTable {
     }
 }
 
+/// Whether every reading that falls where `v` falls among the sorted
+/// thresholds `known` (one region of a clock) falls where `v` falls among
+/// `th` too: no threshold of `th` lies strictly inside `v`'s interval of
+/// `known`. Always so when `th` is among `known`.
+fn same_place(known: &[Time], th: &[Time], v: Time) -> bool {
+    let k = passed(known, v);
+    // Readings are never negative.
+    let lo = if k == 0 { 0 } else { known[k - 1] };
+    let hi = known.get(k).copied().unwrap_or(Time::MAX);
+    th.iter().all(|&x| x <= lo || x >= hi)
+}
+
 /// How many of the sorted thresholds `th` a reading `v` has passed.
 #[inline(always)]
 fn passed(th: &[Time], v: Time) -> usize {
@@ -672,8 +684,9 @@ impl Engine {
     /// scan move whose key is the region of `from` at `t` (the clocks
     /// `restarted` at `t` by it, with origins `origins` after), when every
     /// move with that key gives the same next thresholds: each of `to`'s
-    /// timer clocks restarted, or read by `from`'s region with timers among
-    /// its thresholds. Else [`TimerMemo::OPEN`].
+    /// timer clocks restarted, or read by `from`'s region with no timer
+    /// inside the interval of that region (see [`same_place`]). Else
+    /// [`TimerMemo::OPEN`].
     fn timer_memo(
         &self,
         from: u32,
@@ -692,12 +705,11 @@ impl Engine {
                 let Some(&known) = known else {
                     return TimerMemo::of(TimerMemo::OPEN);
                 };
-                let known = before.thresholds(known);
-                if !th.iter().all(|x| known.binary_search(x).is_ok()) {
-                    return TimerMemo::of(TimerMemo::OPEN);
-                }
                 if o == UNSTARTED {
                     continue;
+                }
+                if !same_place(before.thresholds(known), th, t - o) {
+                    return TimerMemo::of(TimerMemo::OPEN);
                 }
             }
             if let Some(&x) = th.get(passed(th, t - o))
@@ -762,7 +774,7 @@ impl Engine {
     fn scan_settle(&mut self, id: u32, i: usize, origins: &Origins, t: Time) -> Step {
         let mv = self.tables[id as usize].on_scan[i];
         let step = self.fire_at(mv.stepped, origins, t);
-        if self.region_follows(id, mv.stepped, !mv.restarts) {
+        if self.region_follows(id, mv.stepped, !mv.restarts, origins, t) {
             let timer = self.timer_memo(id, step.state, mv.restarts, origins, t);
             let kept = &mut self.tables[id as usize].on_scan[i];
             kept.settled = step.state;
@@ -772,11 +784,21 @@ impl Engine {
         step
     }
 
-    /// Whether the region of `stepped` right after a scan from `id` follows
-    /// from the region of `id` before it: every clock it reads is restarted
-    /// (all read 0), or left `running` with thresholds that `id` reads too
-    /// (the reading is the same, and where it falls among them is known).
-    fn region_follows(&self, id: u32, stepped: u32, running: u64) -> bool {
+    /// Whether the region of `stepped` right after a scan from `id` at `t`
+    /// follows from the region of `id` before it (the move's key): every
+    /// clock it reads is restarted (all read 0), or left `running` and read
+    /// by `id` too, with none of its thresholds inside the interval of
+    /// `id`'s region that the reading lies in (the reading is the same, and
+    /// where it falls among them is known). `origins` are the clocks' after
+    /// the scan.
+    fn region_follows(
+        &self,
+        id: u32,
+        stepped: u32,
+        running: u64,
+        origins: &Origins,
+        t: Time,
+    ) -> bool {
         let (before, after) = (&self.tables[id as usize], &self.tables[stepped as usize]);
         if after.region_clocks & running & !before.region_clocks != 0 {
             return false;
@@ -789,11 +811,8 @@ impl Engine {
                 let Some(&known) = before.region.iter().find(|b| b.clock == span.clock) else {
                     return false;
                 };
-                let known = before.thresholds(known);
-                after
-                    .thresholds(span)
-                    .iter()
-                    .all(|x| known.binary_search(x).is_ok())
+                reading(origins.of(span.clock as usize), t)
+                    .is_none_or(|v| same_place(before.thresholds(known), after.thresholds(span), v))
             })
     }
 
@@ -856,5 +875,26 @@ impl Engine {
             }
         }
         next
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::same_place;
+
+    #[test]
+    fn a_threshold_outside_the_readings_interval_keeps_its_place() {
+        let known = [20, 141];
+        // Readings in [20, 141): 2890 and 296001 are passed by none of them.
+        assert!(same_place(&known, &[2890, 2961, 296_001], 100));
+        assert!(same_place(&known, &[20, 141], 100));
+        // 60 lies inside [20, 141): a reading of 30 has not passed it, 100 has.
+        assert!(!same_place(&known, &[60], 100));
+        // Past the last threshold, any later one may or may not be passed.
+        assert!(!same_place(&known, &[2890], 200));
+        assert!(same_place(&known, &[141], 200));
+        // Before the first: from 0 on.
+        assert!(same_place(&known, &[0, 20], 5));
+        assert!(!same_place(&known, &[10], 5));
     }
 }

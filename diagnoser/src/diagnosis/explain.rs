@@ -42,8 +42,7 @@ pub(crate) fn reason(
     let mut text = match (scan, glitch) {
         (None, Some(h)) => words.stuck_not_glitch(h),
         (None, None) => {
-            let missed =
-                words.expectations(subject.and_then(|h| part.model_state(h.phys)), &|_| true);
+            let missed = words.expectations(subject, &|_| true);
             if missed.is_empty() {
                 "time passed with no event".to_string()
             } else {
@@ -107,11 +106,12 @@ impl Words<'_> {
         )
     }
 
-    /// The events model state `state` expects, among those `due`, as
-    /// `E within [lo, hi] after C`.
-    fn expectations(&self, state: Option<usize>, due: &dyn Fn(&Move) -> bool) -> Vec<String> {
+    /// The events that hypothesis `h`'s model state expects, among those
+    /// `due`, as `E within [lo, hi] after C`, with the bounds as `h` reads
+    /// them (a slow element's are stretched).
+    fn expectations(&self, h: Option<Hypothesis>, due: &dyn Fn(&Move) -> bool) -> Vec<String> {
         let part = self.part;
-        let Some(st) = state else {
+        let Some((h, st)) = h.and_then(|h| Some((h, part.model_state(h.phys)?))) else {
             return Vec::new();
         };
         part.expected(st)
@@ -122,7 +122,7 @@ impl Words<'_> {
                 format!(
                     "{} within {} after {}",
                     part.event_name(m.id),
-                    self.window(m.lo, m.hi),
+                    self.window(m.lo, part.slow_bound(h, m)),
                     self.clock(m.clock)
                 )
             })
@@ -190,9 +190,10 @@ impl Words<'_> {
             }
             // In its window, into a state whose deadline has passed.
             Some(_) => {
-                let late = self.expectations(part.model_state(obs ^ changed), &|m| {
-                    reading(m.clock).is_some_and(|r| r > m.hi)
-                });
+                // As the normal hypothesis reads them: the one ruled out.
+                let normal = part.initial(obs ^ changed).first().copied();
+                let late =
+                    self.expectations(normal, &|m| reading(m.clock).is_some_and(|r| r > m.hi));
                 if late.is_empty() {
                     s.push_str(&format!(
                         ", not expected then in state {}",

@@ -22,7 +22,7 @@ use std::collections::HashMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::fault::FaultTemplate;
+use crate::fault::{Factor, FaultTemplate};
 use crate::model::{ModelClock, PartModel, SensorKind, edge_name};
 use crate::plant::{Part, Plant};
 use crate::{SignalId, Time, TimeUnit};
@@ -111,6 +111,16 @@ pub enum ModeKind {
         to: u8,
         /// Bits of the sensors the element drives.
         drives: u32,
+    },
+    /// The motions of an element or of what an actuator drives take longer,
+    /// by an unknown factor up to [`Factor::MAX`], from an unobserved onset
+    /// on: their edges come in the learned order, no sooner than learned, and
+    /// up to that factor later.
+    Slow {
+        /// Bits of the sensors whose rising edges end or mark such a motion.
+        rises: u32,
+        /// Bits of the sensors whose falling edges do.
+        falls: u32,
     },
 }
 
@@ -331,7 +341,14 @@ impl PartDiagnoser {
         lend_outside_edges(&vectors, &states, &mut moves, loose | undriven);
         let reactions = reactions(&moves, act_mask);
         let free_edges = free_edges(&vectors, &moves, act_mask, free);
-        let (modes, partitions) = fault_modes(plant, part, drives, &names, &bit_of, &mut clocks)?;
+        let motions = Motions {
+            drives,
+            element: if drives == 0 { sensors } else { drives },
+            orders: (0..part.actuators.len() as u8)
+                .map(|a| order_edges(&vectors, &states, &moves, act_mask, a))
+                .collect(),
+        };
+        let (modes, partitions) = fault_modes(plant, part, &motions, &names, &bit_of, &mut clocks)?;
         let clocks = clocks.clocks;
         let latest_lo = latest_lower_bounds(&moves, clocks.len());
         Ok(PartDiagnoser {
@@ -570,11 +587,33 @@ impl PartDiagnoser {
     /// an expected `m` must have come: later when the control reacted late
     /// ([`Hypothesis::LATE`]).
     fn upper_bound(&self, h: Hypothesis, m: &Move) -> Time {
+        let hi = self.slow_bound(h, m);
         if h.has(Hypothesis::LATE) {
-            m.hi + self.glitch_max
+            hi + self.glitch_max
+        } else {
+            hi
+        }
+    }
+
+    /// `m`'s latest reading under `h`'s mode: stretched by [`Factor::MAX`]
+    /// where `h`'s slow element or actuator makes the motion.
+    pub(crate) fn slow_bound(&self, h: Hypothesis, m: &Move) -> Time {
+        if self.slowed(h, m) {
+            // Clamped so that no learned bound overflows.
+            Factor::MAX.stretch(m.hi.min(Time::MAX / 1024))
         } else {
             m.hi
         }
+    }
+
+    /// Whether `m`, taken from `h`'s physical state, is a motion that `h`'s
+    /// slow element or actuator makes: one of its sensor edges is.
+    fn slowed(&self, h: Hypothesis, m: &Move) -> bool {
+        let ModeKind::Slow { rises, falls } = self.modes[h.mode as usize].kind else {
+            return false;
+        };
+        let sensed = m.changed & !self.act_mask;
+        sensed & !h.phys & rises != 0 || sensed & h.phys & falls != 0
     }
 
     /// Whether `m` cannot follow, in the same scan, the transitions of `h`
@@ -709,6 +748,12 @@ impl PartDiagnoser {
                                 .any(|mv| (mv.changed & !self.act_mask) >> to & 1 == 1)
                         });
                     in_transit.then_some(h.phys)
+                }
+                ModeKind::Slow { .. } => {
+                    // Nothing differs at the onset but the bounds to come,
+                    // so the hypothesis keeps what normal allows for.
+                    out.push(Hypothesis { mode: mode_id, ..h });
+                    None
                 }
             };
             if let Some(phys) = onset {
@@ -1749,7 +1794,7 @@ fn reactions(moves: &[Vec<Move>], act_mask: u32) -> Vec<u32> {
 fn fault_modes(
     plant: &Plant,
     part: &Part,
-    drives: u32,
+    motions: &Motions,
     names: &[String],
     bit_of: &impl Fn(&str) -> Option<u8>,
     clocks: &mut ClockTable<'_>,
@@ -1762,7 +1807,7 @@ fn fault_modes(
     }];
     let mut partitions: Vec<String> = Vec::new();
     for f in &plant.faults {
-        let Some(kind) = mode_kind(&f.template, part, drives, bit_of) else {
+        let Some(kind) = mode_kind(&f.template, part, motions, bit_of) else {
             continue;
         };
         if let ModeKind::Glitch { bit, value } = kind {
@@ -1962,14 +2007,65 @@ fn expectations(model: &PartModel, motion_state: &[usize], moves: &[Vec<Move>]) 
     expected
 }
 
+/// Which sensor edges a part's element and each of its actuators move:
+/// what its element and slow faults act on.
+struct Motions {
+    /// Bits of the sensors the element drives (the plant file's `drives`,
+    /// 0 without it).
+    drives: u32,
+    /// Bits of the sensors the element moves: `drives`, or without it every
+    /// sensor of the part but its inputs.
+    element: u32,
+    /// Per actuator bit, the sensor edges that follow its orders, as
+    /// (rising bits, falling bits).
+    orders: Vec<(u32, u32)>,
+}
+
+/// The sensor edges that follow the orders of actuator `a` in the model, as
+/// (rising bits, falling bits): those of the moves out of the states an
+/// edge of `a` leads to, and on through sensor edges, until another order
+/// starts another motion.
+fn order_edges(
+    vectors: &[u32],
+    states: &HashMap<u32, usize>,
+    moves: &[Vec<Move>],
+    act_mask: u32,
+    a: u8,
+) -> (u32, u32) {
+    let mut seen = vec![false; vectors.len()];
+    let mut queue: Vec<usize> = moves
+        .iter()
+        .enumerate()
+        .flat_map(|(s, ms)| ms.iter().map(move |m| (s, m)))
+        .filter(|(_, m)| m.changed >> a & 1 == 1)
+        .filter_map(|(s, m)| states.get(&(vectors[s] ^ m.changed)).copied())
+        .collect();
+    let (mut rises, mut falls) = (0, 0);
+    while let Some(s) = queue.pop() {
+        if std::mem::replace(&mut seen[s], true) {
+            continue;
+        }
+        for m in &moves[s] {
+            let sensed = m.changed & !act_mask;
+            rises |= sensed & !vectors[s];
+            falls |= sensed & vectors[s];
+            if m.changed & act_mask == 0 {
+                queue.extend(states.get(&(vectors[s] ^ m.changed)));
+            }
+        }
+    }
+    (rises, falls)
+}
+
 /// The mode a fault template gives in `part`, if it concerns the part.
 fn mode_kind(
     template: &FaultTemplate,
     part: &Part,
-    drives: u32,
+    motions: &Motions,
     bit_of: &impl Fn(&str) -> Option<u8>,
 ) -> Option<ModeKind> {
     let element_is = |e: &str| part.element.as_deref() == Some(e);
+    let drives = motions.drives;
     Some(match template {
         FaultTemplate::Stuck0(s) => ModeKind::SensorStuck {
             bit: bit_of(s)?,
@@ -2006,8 +2102,14 @@ fn mode_kind(
                 drives,
             }
         }
-        // Not modelled yet: the part's diagnoser has no mode for it.
-        FaultTemplate::Slow(_) => return None,
+        FaultTemplate::Slow(x) if element_is(x) => ModeKind::Slow {
+            rises: motions.element,
+            falls: motions.element,
+        },
+        FaultTemplate::Slow(x) => {
+            let &(rises, falls) = motions.orders.get(usize::from(bit_of(x)?))?;
+            ModeKind::Slow { rises, falls }
+        }
         _ => return None,
     })
 }

@@ -956,10 +956,13 @@ fn an_edge_out_of_its_window_is_timed_on_the_window_s_own_clock() {
     );
 }
 
-/// One case of `fixtures/engine/`: a fixture part, its initial values, events
-/// and end, what its final labels must hold, and the exact verdict lines.
+/// One case of `fixtures/engine/`: a fixture part, the faults that replace
+/// its plant file's, its initial values, events and end, what its final labels must
+/// hold, and the exact verdict lines.
 struct Case {
     plant: String,
+    /// `label=template` pairs that replace the plant file's `[faults]`.
+    faults: Vec<String>,
     on: Vec<String>,
     end: i64,
     contains: Vec<String>,
@@ -970,7 +973,7 @@ struct Case {
     head: String,
 }
 
-/// Reads a case file. Lines: `key: value` (plant, on, end, contains,
+/// Reads a case file. Lines: `key: value` (plant, faults, on, end, contains,
 /// excludes), then `events:` and one `t signal value` per line (t in ms), then
 /// `verdicts:` and the expected JSON lines. `#` starts a comment line.
 fn parse_case(path: &Path) -> Case {
@@ -978,6 +981,7 @@ fn parse_case(path: &Path) -> Case {
     let (head, verdicts) = text.split_once("verdicts:\n").unwrap_or((&text, ""));
     let mut case = Case {
         plant: String::new(),
+        faults: Vec::new(),
         on: Vec::new(),
         end: 0,
         contains: Vec::new(),
@@ -1012,6 +1016,7 @@ fn parse_case(path: &Path) -> Case {
         let list: Vec<String> = rest.split_whitespace().map(str::to_string).collect();
         match key {
             "plant" => case.plant = rest.trim().to_string(),
+            "faults" => case.faults = list,
             "on" => case.on = list,
             "end" => case.end = rest.trim().parse().expect("end"),
             "contains" => case.contains = list,
@@ -1020,6 +1025,24 @@ fn parse_case(path: &Path) -> Case {
         }
     }
     case
+}
+
+/// A plant file's text with its `[faults]` (its last table) replaced by the
+/// faults `label=template`, when there are some.
+fn with_faults(text: String, faults: &[String]) -> String {
+    if faults.is_empty() {
+        return text;
+    }
+    let (head, table) = text.split_once("[faults]\n").expect("[faults]");
+    assert!(!table.contains("\n["), "[faults] is not the last table");
+    let lines: String = faults
+        .iter()
+        .map(|f| {
+            let (label, template) = f.split_once('=').expect("faults: label=template");
+            format!("\"{label}\" = \"{template}\"\n")
+        })
+        .collect();
+    format!("{head}[faults]\n{lines}")
 }
 
 /// Every case of `diagnoser/tests/fixtures/engine/` gives its verdict lines
@@ -1046,7 +1069,14 @@ fn engine_cases_give_their_verdict_lines() {
             .iter()
             .map(|(t, s, v)| (*t, s.as_str(), *v))
             .collect();
-        let verdicts = fixture_verdicts(&case.plant, &|t| t, &|m| m, &on, &events, case.end);
+        let verdicts = fixture_verdicts(
+            &case.plant,
+            &|t| with_faults(t, &case.faults),
+            &|m| m,
+            &on,
+            &events,
+            case.end,
+        );
         let labels = verdicts
             .iter()
             .rev()
