@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use clap::Parser;
 use datasets::generated::Size;
-use evaluation::summary::{describe, disagreement_table, disagreements, table};
+use evaluation::summary::{describe, disagreement_table, disagreements, table, template_table};
 use evaluation::{PlantOutcome, Settings, evaluate};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -158,6 +158,8 @@ fn render(outcomes: &[PlantOutcome], settings: &Settings, jobs: usize, wall: f64
         describe(settings),
     ));
     out.push_str(&table(outcomes));
+    out.push_str("\nBy fault template (`slow` by factor):\n\n");
+    out.push_str(&template_table(outcomes));
     out.push_str(&format!(
         "\n{wall:.0} s wall on {jobs} thread(s), {cpu:.0} s of work: learning {:.0} s, fault-free replay {:.0} s, check {:.0} s, faulty runs {:.0} s.\n",
         sum(|o| o.seconds.learn),

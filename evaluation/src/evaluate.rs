@@ -10,7 +10,7 @@ use datasets::inject::Injection;
 use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::diagnosability::check;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
-use diagnoser::{MS, SECOND, Time, TimeFormat, TimeUnit};
+use diagnoser::{FaultTemplate, MS, SECOND, Time, TimeFormat, TimeUnit};
 use learning::learn::{LearnOptions, Learner};
 use logs::LogStream;
 use rand::{RngExt, SeedableRng};
@@ -81,6 +81,9 @@ pub struct FaultOutcome {
     pub label: String,
     /// Its template.
     pub template: String,
+    /// A `slow` fault's factor.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub factor: Option<f64>,
     /// Its part.
     pub part: String,
     /// Onset, in ms from the start of the run.
@@ -140,6 +143,9 @@ pub struct PlantOutcome {
     pub normal_hours: f64,
     /// Parts leaving normal on it.
     pub false_alarms: Vec<Alarm>,
+    /// `def_` flags raised on it: each would have switched a healthy sensor
+    /// to its estimate, or stopped a healthy part.
+    pub false_flags: Vec<String>,
     /// Each faulty run.
     pub runs: Vec<FaultOutcome>,
     /// Time spent.
@@ -176,6 +182,27 @@ fn chosen(plant: &diagnoser::Plant, settings: &Settings) -> Vec<usize> {
     }
 }
 
+/// The factors every `slow` fault is replayed at: a degradation caught
+/// early (×1.5), halfway (×2) and late (×3).
+pub const SLOW_FACTORS: [&str; 3] = ["x1.5", "x2", "x3"];
+
+/// The runs of one declared fault: once, or once per factor of
+/// [`SLOW_FACTORS`] for a `slow` fault.
+fn injections(label: &str, template: &FaultTemplate, onset: Time) -> Vec<Injection> {
+    let one = Injection::new(label, template.clone(), onset);
+    if !matches!(template, FaultTemplate::Slow(_)) {
+        return vec![one];
+    }
+    SLOW_FACTORS
+        .iter()
+        .filter_map(|f| f.parse().ok())
+        .map(|f| Injection {
+            factor: Some(f),
+            ..one.clone()
+        })
+        .collect()
+}
+
 /// Evaluates plant `seed` of `size`.
 pub fn evaluate(seed: u64, size: Size, settings: &Settings) -> PlantOutcome {
     let mut out = PlantOutcome {
@@ -189,6 +216,7 @@ pub fn evaluate(seed: u64, size: Size, settings: &Settings) -> PlantOutcome {
         timeouts: false,
         normal_hours: 0.0,
         false_alarms: Vec::new(),
+        false_flags: Vec::new(),
         runs: Vec::new(),
         seconds: Seconds::default(),
         error: None,
@@ -224,7 +252,15 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
     let clock = Instant::now();
     let log = fault_free(&g, NORMAL_SEED, settings.normal_duration).map_err(|e| e.to_string())?;
     out.normal_hours = (log.end - log.start) as f64 / (3600 * SECOND) as f64;
-    out.false_alarms = alarms(&replay(&mut diagnoser, &log));
+    let fault_free_verdicts = replay(&mut diagnoser, &log);
+    out.false_alarms = alarms(&fault_free_verdicts);
+    for v in &fault_free_verdicts {
+        for f in &v.flags {
+            if !out.false_flags.contains(f) {
+                out.false_flags.push(f.clone());
+            }
+        }
+    }
     out.seconds.normal = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
@@ -243,13 +279,7 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
     let onsets = onsets(seed, plant.faults.len(), settings);
     let faults: Vec<Injection> = chosen
         .iter()
-        .map(|&i| {
-            Injection::new(
-                plant.faults[i].label.clone(),
-                plant.faults[i].template.clone(),
-                onsets[i],
-            )
-        })
+        .flat_map(|&i| injections(&plant.faults[i].label, &plant.faults[i].template, onsets[i]))
         .collect();
     faulty_runs(&g, FAULT_SEED, &faults, settings.horizon, |run| {
         let part = part_of(plant, &run.fault.template).unwrap_or_default();
@@ -259,6 +289,7 @@ fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Re
         out.runs.push(FaultOutcome {
             label: run.fault.label.clone(),
             template: run.fault.template.to_string(),
+            factor: run.fault.factor.map(|f| f.get()),
             part,
             onset_ms: run.fault.onset / MS,
             end_ms: run.log.end / MS,

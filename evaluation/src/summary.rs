@@ -22,6 +22,11 @@ pub struct Totals {
     pub normal_hours: f64,
     /// Parts leaving normal on them.
     pub false_alarms: usize,
+    /// `def_` flags raised on them.
+    pub false_flags: usize,
+    /// Judged runs whose last verdict is `certain` on labels without the
+    /// true fault (`unknown` apart).
+    pub certain_wrong: usize,
     /// Faulty runs whose part had left normal before the onset (left out of
     /// every rate below).
     pub preempted: usize,
@@ -65,6 +70,7 @@ impl Totals {
         self.parts += p.parts;
         self.normal_hours += p.normal_hours;
         self.false_alarms += p.false_alarms.len();
+        self.false_flags += p.false_flags.len();
         for r in &p.runs {
             self.add_run(r);
         }
@@ -80,6 +86,11 @@ impl Totals {
         if let Some(sound) = j.sound {
             self.judged += 1;
             self.sound += usize::from(sound);
+            self.certain_wrong += usize::from(
+                j.final_verdict == "certain"
+                    && j.final_labels != ["unknown"]
+                    && !j.final_labels.contains(&r.label),
+            );
         }
         if r.showed_ms.is_none() {
             return;
@@ -146,8 +157,8 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
     }
     rows.push(("all".to_string(), all));
     let mut out = String::from(
-        "| plants | parts | faulty runs | false alarms / 100 h (fault-free h) | preempted (part alarmed before onset) | sound | detected (of showed) | detected (of edges changed) | isolated (of `check` isolable) | isolated (of isolable while running) | isolated (of showed) | delay median | delay p95 |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| plants | parts | faulty runs | false alarms / 100 h (fault-free h) | `def_` flags on fault-free logs | preempted (part alarmed before onset) | sound | ending `certain` on a wrong label | detected (of showed) | detected (of edges changed) | isolated (of `check` isolable) | isolated (of isolable while running) | isolated (of showed) | delay median | delay p95 |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (name, t) in rows {
         let rate = if t.normal_hours > 0.0 {
@@ -167,12 +178,14 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
         };
         let _ = writeln!(
             out,
-            "| {name}: {}{errors} | {} | {} | {rate} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {name}: {}{errors} | {} | {} | {rate} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             t.plants,
             t.parts,
             t.runs,
+            t.false_flags,
             percent(t.preempted, t.runs),
             percent(t.sound, t.judged),
+            t.certain_wrong,
             percent(t.detected, t.showed),
             percent(t.edges_changed_detected, t.edges_changed),
             percent(t.isolable_isolated, t.isolable),
@@ -180,6 +193,48 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
             percent(t.isolated, t.showed),
             seconds(quantile(&t.delays, 0.5)),
             seconds(quantile(&t.delays, 0.95)),
+        );
+    }
+    out
+}
+
+/// The rates by fault template (`slow` by factor), over every plant: how
+/// each kind of fault is detected, kept and isolated.
+pub fn template_table(outcomes: &[PlantOutcome]) -> String {
+    let mut rows: Vec<(String, Totals)> = Vec::new();
+    for p in outcomes.iter().filter(|p| p.error.is_none()) {
+        for r in &p.runs {
+            let name = r.template.split('(').next().unwrap_or("").to_string();
+            let name = match r.factor {
+                Some(f) => format!("{name} ×{f}"),
+                None => name,
+            };
+            let at = match rows.iter().position(|(n, _)| *n == name) {
+                Some(at) => at,
+                None => {
+                    rows.push((name, Totals::default()));
+                    rows.len() - 1
+                }
+            };
+            rows[at].1.add_run(r);
+        }
+    }
+    rows.sort_by(|a, b| a.0.cmp(&b.0));
+    let mut out = String::from(
+        "| template | faulty runs | preempted | sound | detected (of showed) | detected (of edges changed) | isolated (of showed) | ending `certain` on a wrong label |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for (name, t) in rows {
+        let _ = writeln!(
+            out,
+            "| {name} | {} | {} | {} | {} | {} | {} | {} |",
+            t.runs,
+            percent(t.preempted, t.runs),
+            percent(t.sound, t.judged),
+            percent(t.detected, t.showed),
+            percent(t.edges_changed_detected, t.edges_changed),
+            percent(t.isolated, t.showed),
+            t.certain_wrong,
         );
     }
     out

@@ -97,23 +97,24 @@ fn f2_turns_ambiguous_then_certain() {
     assert_eq!(last["verdict"], "certain");
     assert_eq!(labels(last), ["F2"]);
     assert_eq!(last["flags"], serde_json::json!(["def_C4"]));
-    // Certain once normal after a glitch is ruled out and F2 has explained
-    // the turntable for its longest learned motion; RE(C5) ruled F5 out
-    // before, with normal after a glitch still beside F2, and no flag.
     assert!(
         last["reason"]
             .as_str()
-            .is_some_and(|r| r.starts_with("confirmed: normal after a glitch")),
+            .is_some_and(|r| r.starts_with("RE(C5)")),
         "{last}"
     );
-    let before = &turntable[turntable.len() - 2];
-    assert_eq!(labels(before), ["N", "F2"]);
-    assert_eq!(before["flags"], serde_json::json!([]));
+    // Normal after a glitch stands beside the faults, with no flag, until a
+    // glitch would be over (100 ms).
+    assert_eq!(labels(first)[0], "N", "{first}");
+    assert_eq!(first["flags"], serde_json::json!([]));
+    let second = &turntable[1];
+    assert_eq!(labels(second), ["F2", "F5"]);
+    assert_eq!(second["t"].as_f64(), Some(602_990.0));
     assert!(
-        before["reason"]
+        second["reason"]
             .as_str()
-            .is_some_and(|r| r.starts_with("RE(C5)")),
-        "{before}"
+            .is_some_and(|r| r.ends_with("normal after a glitch at 602890 ms ruled out at 602990 ms")),
+        "{second}"
     );
     // The plant view agrees.
     let plant = all
