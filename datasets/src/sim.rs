@@ -3,6 +3,7 @@
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use vocabulary::fault::Factor;
 use vocabulary::{FaultTemplate, Plant, Time};
 
 use crate::inject::{Injection, SensorInjector};
@@ -44,6 +45,17 @@ pub trait Physics {
     /// Starts an element fault (`blocked_at`, `blocked_between`) now. Errors name
     /// what this plant cannot simulate.
     fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String>;
+
+    /// Starts a `slow` fault now: from here on, every motion, flow or heating
+    /// of element or actuator `target` takes `factor` times longer. Plants
+    /// that cannot simulate it say so.
+    fn inject_slow(&mut self, target: &str, factor: Factor) -> Result<(), String> {
+        let _ = factor;
+        Err(format!(
+            "plant '{}' cannot simulate slow({target})",
+            self.plant().name
+        ))
+    }
 
     /// Throughput counters for the report (e.g. boxes delivered on each side).
     fn counters(&self) -> Vec<(String, u64)>;
@@ -231,9 +243,13 @@ impl Stepper {
         while self.pending_elements.last().is_some_and(|f| f.onset <= t) {
             if let Some(f) = self.pending_elements.pop() {
                 // Checked by `Injection::resolve`; a refusal here is a simulator bug.
-                physics
-                    .inject_element_fault(&f.template)
-                    .map_err(std::io::Error::other)?;
+                let started = match &f.template {
+                    FaultTemplate::Slow(x) => {
+                        physics.inject_slow(x, f.factor.unwrap_or(Factor::DEFAULT))
+                    }
+                    other => physics.inject_element_fault(other),
+                };
+                started.map_err(std::io::Error::other)?;
             }
         }
         physics.advance(t, &self.physical, &mut self.rng, &mut self.report.damage);

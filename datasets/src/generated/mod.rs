@@ -37,6 +37,8 @@
 pub mod layout;
 pub mod physics;
 pub mod plant_file;
+pub mod positioning;
+pub mod process;
 pub mod program;
 
 use std::path::Path;
@@ -44,7 +46,7 @@ use std::sync::Arc;
 
 use vocabulary::Plant;
 
-pub use layout::{Layout, Size};
+pub use layout::{Family, Layout, Size};
 pub use physics::GeneratedPhysics;
 pub use program::StepChains;
 
@@ -62,9 +64,22 @@ impl GeneratedPlant {
     /// The plant of `seed` and `size`. An error is a bug of the generator: the
     /// plant file it wrote does not load.
     pub fn generate(seed: u64, size: Size) -> Result<GeneratedPlant, String> {
-        let layout = Layout::generate(seed, size);
+        GeneratedPlant::generate_family(seed, size, Family::Assembly)
+    }
+
+    /// The plant of `seed` and `size` in `family`; [`Family::Assembly`] gives
+    /// the plants of [`GeneratedPlant::generate`].
+    pub fn generate_family(
+        seed: u64,
+        size: Size,
+        family: Family,
+    ) -> Result<GeneratedPlant, String> {
+        let layout = Layout::generate_family(seed, size, family);
         let toml = plant_file::plant_toml(&layout);
-        let path = format!("generated plant {seed} ({})", size.name());
+        let path = match family {
+            Family::Assembly => format!("generated plant {seed} ({})", size.name()),
+            f => format!("generated plant {seed} ({}, {})", size.name(), f.name()),
+        };
         let plant = Plant::parse(&toml, Path::new(&path)).map_err(|e| e.to_string())?;
         Ok(GeneratedPlant {
             layout: Arc::new(layout),
