@@ -534,6 +534,9 @@ pub struct PartSpec {
     pub sensors: Vec<usize>,
     /// Its moving element, target of element faults.
     pub element: Option<Element>,
+    /// Sensors whose edges its orders do not cause (the surroundings move
+    /// them); the plant file's `inputs`, written when there are some.
+    pub inputs: Vec<usize>,
 }
 
 /// A part's moving element.
@@ -746,13 +749,13 @@ impl Builder {
                 Family::Axes => false,
                 _ => self.rng.random_bool(0.5),
             };
-            // A tank has two parts, three with a heater or cooler; a cell two.
-            if room < 2 {
-                break;
-            } else if tank {
-                self.tank(room >= 3);
-            } else {
+            // A tank is one part, a cell two.
+            if tank || (room < 2 && self.layout.family != Family::Axes) {
+                self.tank();
+            } else if room >= 2 {
                 self.cell();
+            } else {
+                break;
             }
         }
     }
@@ -995,6 +998,7 @@ impl Builder {
             actuators,
             sensors,
             element: Some(Element::Axis(axis)),
+            inputs: Vec::new(),
         });
         self.layout.parts.len() - 1
     }
@@ -1084,6 +1088,7 @@ impl Builder {
                 actuators: vec![g.order],
                 sensors: g.holding.into_iter().collect(),
                 element: None,
+                inputs: Vec::new(),
             });
         }
         self.deliverer.push(arm_part);
@@ -1220,6 +1225,7 @@ impl Builder {
             actuators: vec![conveyor.motor],
             sensors,
             element: None,
+            inputs: Vec::new(),
         });
         let part = self.axis_part(pusher, &[]);
         self.deliverer.push(part);

@@ -13,6 +13,13 @@
 //! physics records damage when one happens ([`physics`]). The plant file says
 //! all of it as a user would ([`plant_file`]).
 //!
+//! That is the [`Family::Assembly`]. Other families ([`Family`]) draw process
+//! units instead ([`process`]: tanks with level switches, valves or pumps on a
+//! drifting supply, heaters or coolers with thermostats), positioning cells
+//! ([`positioning`]: electric axes passing cam switches, with a creep speed, a
+//! brake, a clamp and recipes), or both beside an assembly line
+//! ([`GeneratedPlant::generate_family`]).
+//!
 //! ```
 //! use datasets::generated::{GeneratedPlant, Size};
 //! use datasets::sim::SimConfig;
@@ -30,7 +37,8 @@
 //! assert!(!log.events.is_empty());
 //! ```
 //!
-//! The same plant seed and size give the same plant, byte for byte; the run
+//! The same plant seed, size and family give the same plant, byte for byte
+//! (and [`GeneratedPlant::generate`] the assembly plants it always gave); the run
 //! seed ([`SimConfig::seed`]) draws the run: the drift of each component's
 //! timing, each stroke's jitter, the refills, arrivals and departures.
 

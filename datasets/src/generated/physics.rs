@@ -20,6 +20,10 @@
 //! rod in its nest; `workpiece_dropped` when a gripper lets go between
 //! positions or a workpiece is pushed onto a table that is not there;
 //! `workpiece_jam` when a workpiece is delivered onto an occupied place.
+//!
+//! Tanks and positioning cells keep their own state and damage
+//! ([`super::process`], [`super::positioning`]). A `slow` fault stretches the
+//! nominal times of the component it names, from the stroke under way on.
 
 use std::sync::Arc;
 

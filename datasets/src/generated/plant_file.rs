@@ -263,6 +263,9 @@ fn parts(layout: &Layout, out: &mut String) {
             let _ = writeln!(out, "element = {}", quoted(&tag));
             let _ = writeln!(out, "drives = {}", list(layout, &drives));
         }
+        if !p.inputs.is_empty() {
+            let _ = writeln!(out, "inputs = {}", list(layout, &p.inputs));
+        }
     }
 }
 

@@ -237,8 +237,11 @@ impl Builder {
             actuators: cell.orders().to_vec(),
             sensors,
             element: Some(Element::Carriage(self.layout.cells.len())),
+            inputs: cell.recipe.into_iter().collect(),
         });
-        self.axis_part(clamp, &[cell.infeed, cell.outfeed]);
+        let part = self.axis_part(clamp, &[cell.infeed, cell.outfeed]);
+        // Workpieces arrive and the outfeed frees itself on their own.
+        self.layout.parts[part].inputs = vec![cell.infeed, cell.outfeed];
         self.layout.cells.push(cell);
     }
 }

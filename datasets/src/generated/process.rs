@@ -130,11 +130,10 @@ impl Tank {
 }
 
 impl Builder {
-    /// Draws a process unit around a tank, with two or three parts: filling,
-    /// draining and, if any (and `thermal` allows one), heating or cooling.
-    pub(super) fn tank(&mut self, thermal: bool) {
+    /// Draws a process unit around a tank: one part.
+    pub(super) fn tank(&mut self) {
         let number = self.layout.units() + 1;
-        let thermal = (self.rng.random_bool(0.7) && thermal).then(|| self.rng.random_bool(0.7));
+        let thermal = self.rng.random_bool(0.7).then(|| self.rng.random_bool(0.7));
         let weight = self.rng.random_bool(0.4);
         self.unit_name = match (thermal, weight) {
             (Some(true), _) => "heating tank",
@@ -240,35 +239,23 @@ impl Builder {
         self.layout.tanks.push(tank);
     }
 
-    /// The parts of a tank: filling, draining and, if any, heating or cooling.
+    /// The part of a tank: its orders, its switches, its thermostat and the
+    /// next process's "ready".
     fn tank_parts(&mut self, tank: &Tank) {
-        let number = tank.number;
-        let mut fill_sensors: Vec<usize> = tank.weight.into_iter().collect();
-        fill_sensors.push(tank.high);
-        fill_sensors.extend(tank.overflow);
-        let parts = [
-            ("filling", vec![tank.inlet], fill_sensors),
-            ("draining", vec![tank.outlet], vec![tank.low, tank.ready]),
-        ];
-        for (word, actuators, sensors) in parts {
-            self.layout.parts.push(PartSpec {
-                name: format!("st{number}_{word}"),
-                actuators,
-                sensors,
-                element: None::<Element>,
-            });
-        }
-        if let Some(h) = &tank.thermal {
-            self.layout.parts.push(PartSpec {
-                name: format!(
-                    "st{number}_{}",
-                    if h.heating { "heating" } else { "cooling" }
-                ),
-                actuators: vec![h.order],
-                sensors: vec![h.thermostat],
-                element: None,
-            });
-        }
+        // One part: the level switches follow both the inlet and the outlet,
+        // and the thermostat the heater and the fresh liquid.
+        let mut sensors = vec![tank.low, tank.high];
+        sensors.extend(tank.overflow);
+        sensors.extend(tank.weight);
+        sensors.extend(tank.thermal.as_ref().map(|h| h.thermostat));
+        sensors.push(tank.ready);
+        self.layout.parts.push(PartSpec {
+            name: format!("st{}_tank", tank.number),
+            actuators: tank.orders(),
+            sensors,
+            element: None::<Element>,
+            inputs: vec![tank.ready],
+        });
     }
 
     /// A heater (or cooler) of tank `tag` with its thermostat.
