@@ -658,3 +658,21 @@ fn every_slow_fault_of_the_new_families_shows_at_every_factor() {
         }
     }
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config::with_cases(24))]
+
+    /// Any seed of any family and size gives a plant that loads, fits its
+    /// size, and runs five fault-free minutes without damage.
+    #[test]
+    fn any_seed_gives_a_plant_that_runs(seed in proptest::prelude::any::<u64>(), size in 0usize..3, family in 0usize..4) {
+        let family = Family::ALL[family];
+        let g = GeneratedPlant::generate_family(seed, Size::ALL[size], family);
+        proptest::prop_assert!(g.is_ok(), "{:?}", g.err());
+        let g = g.expect("checked");
+        fits(&g);
+        let (_, report) = g.simulate_in_memory(&config(&g, seed, 300 * SECOND, Vec::new())).expect("runs");
+        proptest::prop_assert!(report.damage.is_empty(), "{}: {:?}", g.layout().name, report.damage.first());
+        proptest::prop_assert_eq!(family.name().parse::<Family>(), Ok(family));
+    }
+}
