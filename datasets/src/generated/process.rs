@@ -449,6 +449,10 @@ pub(super) struct TankState {
     supply: Drift,
     /// Ambient temperature's change over the run, K.
     ambient: Drift,
+    /// The supply's relative head and the ambient temperature now, and until
+    /// when they hold.
+    drifts_now: (f64, f64),
+    drifts_until: Time,
     /// Per-run drift of each flow and of the heating power.
     drift: [f64; 3],
     /// This batch's jitter of the inlet and outlet flows.
@@ -474,6 +478,8 @@ impl TankState {
             thermostat: false,
             supply: Drift::default(),
             ambient: Drift::default(),
+            drifts_now: (1.0, AMBIENT),
+            drifts_until: 0,
             drift: [1.0; 3],
             jitter: [0.0; 2],
             slow: [1.0; 3],
@@ -550,12 +556,16 @@ impl TankState {
         if self.busy_until.is_some_and(|u| t >= u) {
             self.busy_until = None;
         }
-        let ambient = AMBIENT + self.ambient.at(t);
+        if t >= self.drifts_until {
+            // The drifts take minutes: drawn again each second, not each scan.
+            self.drifts_now = (1.0 + self.supply.at(t), AMBIENT + self.ambient.at(t));
+            self.drifts_until = t + SECOND;
+        }
+        let (supply, ambient) = self.drifts_now;
         let span = tank.batch - LOW;
         let mut q_in = 0.0;
         if inlet {
             let nominal = span / tank.fill_time as f64;
-            let supply = 1.0 + self.supply.at(t);
             let head = match tank.inlet_kind {
                 TankFeed::Valve => supply.max(0.0).sqrt(),
                 // A pump's flow hardly feels the supply's pressure.
