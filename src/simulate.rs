@@ -6,7 +6,7 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use clap::{Args, ValueEnum};
-use datasets::generated::{GeneratedPlant, Size};
+use datasets::generated::{Family, GeneratedPlant, Size};
 use datasets::inject::{FaultSpec, Injection};
 use datasets::output::{ArchiveWriter, RunFiles, write_run};
 use datasets::sim::SimConfig;
@@ -43,6 +43,33 @@ pub enum SizeArg {
     Large,
 }
 
+/// What a generated plant is made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FamilyArg {
+    /// A line of assembly stations: cylinders, swivel arms, grippers, rotary
+    /// tables, conveyors, magazines.
+    Assembly,
+    /// Tanks with level switches, inlet and outlet valves or pumps, heaters
+    /// or coolers with thermostats.
+    Process,
+    /// Positioning cells: electric axes with cam switches, creep speed, brake,
+    /// a clamp and recipes.
+    Axes,
+    /// An assembly line beside tanks and positioning cells.
+    Mixed,
+}
+
+impl From<FamilyArg> for Family {
+    fn from(f: FamilyArg) -> Family {
+        match f {
+            FamilyArg::Assembly => Family::Assembly,
+            FamilyArg::Process => Family::Process,
+            FamilyArg::Axes => Family::Axes,
+            FamilyArg::Mixed => Family::Mixed,
+        }
+    }
+}
+
 impl From<SizeArg> for Size {
     fn from(s: SizeArg) -> Size {
         match s {
@@ -75,6 +102,9 @@ pub struct SimulateArgs {
     /// Size of the generated plant (with --plant generated).
     #[arg(long, value_enum, default_value = "medium")]
     size: SizeArg,
+    /// What the generated plant is made of (with --plant generated).
+    #[arg(long, value_enum, default_value = "assembly")]
+    family: FamilyArg,
     /// Simulated duration, e.g. 90s, 20min, 2h, 3d.
     #[arg(long, default_value = "1h", value_parser = time::parse_duration)]
     duration: Time,
@@ -132,13 +162,15 @@ pub struct SimulateArgs {
 /// The generated plant of `--plant-seed` and `--size`, if asked for.
 fn generated(args: &SimulateArgs) -> Result<Option<GeneratedPlant>, Failure> {
     match (args.plant, args.plant_seed) {
-        (PlantKind::Generated, Some(seed)) => GeneratedPlant::generate(seed, args.size.into())
-            .map(Some)
-            .map_err(|e| {
-                Failure::Io(format!(
-                    "the generator wrote a plant file that does not load: {e}"
-                ))
-            }),
+        (PlantKind::Generated, Some(seed)) => {
+            GeneratedPlant::generate_family(seed, args.size.into(), args.family.into())
+                .map(Some)
+                .map_err(|e| {
+                    Failure::Io(format!(
+                        "the generator wrote a plant file that does not load: {e}"
+                    ))
+                })
+        }
         (PlantKind::Generated, None) => Err(Failure::BadInput(
             "--plant generated needs --plant-seed N: the seed that draws the plant".into(),
         )),

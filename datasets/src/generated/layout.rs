@@ -27,6 +27,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use vocabulary::{MS, SECOND, Time};
 
+pub use super::positioning::{Cell, CellPosition, Recipe};
+pub use super::process::{Tank, TankFeed, Thermal};
+
 /// How large a generated plant is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Size {
@@ -71,6 +74,60 @@ impl std::str::FromStr for Size {
     }
 }
 
+/// What a generated plant is made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Family {
+    /// A line of assembly and handling stations: cylinders, swivel arms,
+    /// grippers, rotary tables, conveyors.
+    Assembly,
+    /// Process units: tanks filled and drained through valves and pumps,
+    /// heated or cooled to a thermostat.
+    Process,
+    /// Positioning cells: electric axes passing cam switches in sequence,
+    /// with a creep speed, a brake, a clamp and recipes.
+    Axes,
+    /// An assembly line beside process units and positioning cells.
+    Mixed,
+}
+
+impl Family {
+    /// Every family, the assembly lines first.
+    pub const ALL: [Family; 4] = [
+        Family::Assembly,
+        Family::Process,
+        Family::Axes,
+        Family::Mixed,
+    ];
+
+    /// The family's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Assembly => "assembly",
+            Family::Process => "process",
+            Family::Axes => "axes",
+            Family::Mixed => "mixed",
+        }
+    }
+}
+
+impl std::fmt::Display for Family {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Family {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Family, String> {
+        Family::ALL
+            .into_iter()
+            .find(|f| f.name() == text)
+            .ok_or_else(|| {
+                format!("unknown family '{text}' (expected assembly, process, axes or mixed)")
+            })
+    }
+}
+
 /// Run-to-run drift of every travel time: each run scales a component's
 /// nominal times by a factor drawn in `1 ± DRIFT`.
 pub const DRIFT: f64 = 0.05;
@@ -107,6 +164,9 @@ pub enum AxisRole {
     Arm,
     /// A rotary table turning its nest between a loading and a work position.
     Table,
+    /// A clamp on the carriage of an electric axis, holding the workpiece it
+    /// carries (end 1: closed).
+    Clamp,
 }
 
 /// What a tool cylinder does to a workpiece.
@@ -151,6 +211,7 @@ impl AxisRole {
             },
             AxisRole::Arm => "swivel arm",
             AxisRole::Table => "rotary table",
+            AxisRole::Clamp => "carriage clamp",
         }
     }
 
@@ -170,6 +231,7 @@ impl AxisRole {
             },
             AxisRole::Arm => "arm",
             AxisRole::Table => "table",
+            AxisRole::Clamp => "clamp",
         }
     }
 
@@ -178,6 +240,7 @@ impl AxisRole {
         match self {
             AxisRole::Arm => ("at the pick position", "at the place position"),
             AxisRole::Table => ("at the loading position", "at the work position"),
+            AxisRole::Clamp => ("open", "closed"),
             _ => ("retracted", "extended"),
         }
     }
@@ -191,6 +254,7 @@ impl AxisRole {
         match self {
             AxisRole::Arm => format!("swivel arm {tag} to {place}"),
             AxisRole::Table => format!("rotate table {tag} to {place}"),
+            AxisRole::Clamp => format!("{} clamp {tag}", if end { "close" } else { "open" }),
             _ => format!(
                 "{} {} {tag}",
                 if end { "extend" } else { "retract" },
@@ -468,8 +532,20 @@ pub struct PartSpec {
     pub actuators: Vec<usize>,
     /// Its sensors.
     pub sensors: Vec<usize>,
-    /// Its moving element (an axis's tag), target of element faults.
-    pub element: Option<usize>,
+    /// Its moving element, target of element faults.
+    pub element: Option<Element>,
+    /// Sensors whose edges its orders do not cause (the surroundings move
+    /// them); the plant file's `inputs`, written when there are some.
+    pub inputs: Vec<usize>,
+}
+
+/// A part's moving element.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Element {
+    /// A cylinder, swivel arm, rotary table or clamp (index in the axes).
+    Axis(usize),
+    /// The carriage of a positioning cell's electric axis (index in the cells).
+    Carriage(usize),
 }
 
 /// Random delays of the plant's surroundings, in nanoseconds.
@@ -534,12 +610,29 @@ pub struct Layout {
     pub parts: Vec<PartSpec>,
     /// The surroundings' random delays.
     pub surroundings: Surroundings,
+    /// What it is made of.
+    pub family: Family,
+    /// Process units (tanks), after the line's stations.
+    pub tanks: Vec<Tank>,
+    /// Positioning cells (electric axes), after the tanks.
+    pub cells: Vec<Cell>,
 }
 
 impl Layout {
-    /// Draws the plant of `seed` and `size`.
+    /// Draws the assembly plant of `seed` and `size`.
     pub fn generate(seed: u64, size: Size) -> Layout {
-        Builder::new(seed, size).build()
+        Layout::generate_family(seed, size, Family::Assembly)
+    }
+
+    /// Draws the plant of `seed` and `size` in `family`.
+    pub fn generate_family(seed: u64, size: Size, family: Family) -> Layout {
+        Builder::new(seed, size, family).build()
+    }
+
+    /// Number of units (stations, tanks, cells): the next unit's number is
+    /// one more.
+    pub fn units(&self) -> usize {
+        self.stations.len() + self.tanks.len() + self.cells.len()
     }
 
     /// Number of sensors.
@@ -564,29 +657,37 @@ struct ProcessingAxes {
 }
 
 /// Log-uniform draw in `[lo, hi]`: travel times spread over decades.
-fn log_uniform(rng: &mut ChaCha8Rng, lo: Time, hi: Time) -> Time {
+pub(super) fn log_uniform(rng: &mut ChaCha8Rng, lo: Time, hi: Time) -> Time {
     let (a, b) = ((lo as f64).ln(), (hi as f64).ln());
     rng.random_range(a..=b).exp().round() as Time
 }
 
 /// Draws the layout, station by station.
-struct Builder {
-    rng: ChaCha8Rng,
-    layout: Layout,
+pub(super) struct Builder {
+    pub(super) rng: ChaCha8Rng,
+    pub(super) layout: Layout,
     /// Tags given so far per (letter, station): the next number.
     tags: std::collections::BTreeMap<(char, usize), usize>,
     /// Per station, the part of the component delivering to its output.
     deliverer: Vec<usize>,
+    /// The name of the unit (tank, cell) being drawn, for descriptions.
+    pub(super) unit_name: String,
 }
 
 impl Builder {
-    fn new(seed: u64, size: Size) -> Builder {
+    fn new(seed: u64, size: Size, family: Family) -> Builder {
         // The size takes part in the seed, so that `--size` changes the plant
-        // and not only its length.
+        // and not only its length; so does the family (the assembly lines
+        // keep the seeds they always had).
         let salt = match size {
             Size::Small => 0x5111,
             Size::Medium => 0x3ed1,
             Size::Large => 0x1a76,
+        } ^ match family {
+            Family::Assembly => 0,
+            Family::Process => 0x7a_0000,
+            Family::Axes => 0x3c_0000,
+            Family::Mixed => 0x55_0000,
         };
         let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ salt);
         let periods = [2, 4, 5, 8, 10, 12, 16, 20];
@@ -597,7 +698,10 @@ impl Builder {
             layout: Layout {
                 seed,
                 size,
-                name: format!("generated-{seed}-{}", size.name()),
+                name: match family {
+                    Family::Assembly => format!("generated-{seed}-{}", size.name()),
+                    f => format!("generated-{}-{seed}-{}", f.name(), size.name()),
+                },
                 scan_period,
                 timeouts,
                 signals: Vec::new(),
@@ -610,16 +714,54 @@ impl Builder {
                 hazards: Vec::new(),
                 parts: Vec::new(),
                 surroundings: Surroundings::default(),
+                family,
+                tanks: Vec::new(),
+                cells: Vec::new(),
             },
             tags: Default::default(),
             deliverer: Vec::new(),
+            unit_name: String::new(),
         }
     }
 
     fn build(mut self) -> Layout {
-        let (_, most) = self.layout.size.parts();
-        let (least, _) = self.layout.size.parts();
+        let (least, most) = self.layout.size.parts();
         let target = self.rng.random_range(least..=most);
+        match self.layout.family {
+            Family::Assembly => self.line(target, most),
+            Family::Process | Family::Axes => self.units(target, most),
+            Family::Mixed => {
+                // About half the parts in a line, the rest in units beside it.
+                self.line((target / 2).max(2), target);
+                self.units(target, most);
+            }
+        }
+        self.layout
+    }
+
+    /// Adds units (tanks, positioning cells) of the family until the plant
+    /// has `target` parts, never more than `most`.
+    fn units(&mut self, target: usize, most: usize) {
+        while self.layout.parts.len() < target {
+            let room = most - self.layout.parts.len();
+            let tank = match self.layout.family {
+                Family::Process => true,
+                Family::Axes => false,
+                _ => self.rng.random_bool(0.5),
+            };
+            // A tank is one part, a cell two.
+            if tank || (room < 2 && self.layout.family != Family::Axes) {
+                self.tank();
+            } else if room >= 2 {
+                self.cell();
+            } else {
+                break;
+            }
+        }
+    }
+
+    /// An assembly line of stations with `target` parts, at most `most`.
+    fn line(&mut self, target: usize, most: usize) {
         let mut input = None;
         loop {
             let template = self.template(input.is_none(), most - self.layout.parts.len());
@@ -632,7 +774,6 @@ impl Builder {
             }
         }
         self.finish_output();
-        self.layout
     }
 
     /// A template for the next station, with at most `room` parts.
@@ -653,7 +794,13 @@ impl Builder {
         choices[self.rng.random_range(0..choices.len())]
     }
 
-    fn signal(&mut self, letter: char, station: usize, sensor: bool, description: String) -> usize {
+    pub(super) fn signal(
+        &mut self,
+        letter: char,
+        station: usize,
+        sensor: bool,
+        description: String,
+    ) -> usize {
         let n = self.tags.entry((letter, station)).or_insert(0);
         *n += 1;
         let name = format!("{letter}{station}{:02}", *n);
@@ -665,11 +812,11 @@ impl Builder {
         self.layout.signals.len() - 1
     }
 
-    fn sensor(&mut self, station: usize, description: String) -> usize {
+    pub(super) fn sensor(&mut self, station: usize, description: String) -> usize {
         self.signal('B', station, true, description)
     }
 
-    fn tag(&mut self, letter: char, station: usize) -> String {
+    pub(super) fn tag(&mut self, letter: char, station: usize) -> String {
         let n = self.tags.entry((letter, station)).or_insert(0);
         *n += 1;
         format!("{letter}{station}{n}")
@@ -680,9 +827,11 @@ impl Builder {
         self.layout.places.len() - 1
     }
 
-    fn label(&self, number: usize) -> String {
-        let s = &self.layout.stations[number - 1];
-        format!("station {number}, {}", s.name)
+    pub(super) fn label(&self, number: usize) -> String {
+        match self.layout.stations.get(number - 1) {
+            Some(s) => format!("station {number}, {}", s.name),
+            None => format!("unit {number}, {}", self.unit_name),
+        }
     }
 
     /// Adds a station of `template` taking its workpieces from `input` (or
@@ -789,7 +938,7 @@ impl Builder {
 
     /// Draws an axis with its orders and switches; `need` says which end
     /// switches the program or a constraint needs.
-    fn axis(
+    pub(super) fn axis(
         &mut self,
         number: usize,
         role: AxisRole,
@@ -838,7 +987,7 @@ impl Builder {
     }
 
     /// A part for one axis, with `extra` sensors it reads.
-    fn axis_part(&mut self, axis: usize, extra: &[usize]) -> usize {
+    pub(super) fn axis_part(&mut self, axis: usize, extra: &[usize]) -> usize {
         let a = &self.layout.axes[axis];
         let name = format!("st{}_{}", a.station + 1, a.role.part_word());
         let actuators = std::iter::once(a.out).chain(a.back).collect();
@@ -848,7 +997,8 @@ impl Builder {
             name,
             actuators,
             sensors,
-            element: Some(axis),
+            element: Some(Element::Axis(axis)),
+            inputs: Vec::new(),
         });
         self.layout.parts.len() - 1
     }
@@ -938,6 +1088,7 @@ impl Builder {
                 actuators: vec![g.order],
                 sensors: g.holding.into_iter().collect(),
                 element: None,
+                inputs: Vec::new(),
             });
         }
         self.deliverer.push(arm_part);
@@ -1074,6 +1225,7 @@ impl Builder {
             actuators: vec![conveyor.motor],
             sensors,
             element: None,
+            inputs: Vec::new(),
         });
         let part = self.axis_part(pusher, &[]);
         self.deliverer.push(part);

@@ -13,6 +13,13 @@
 //! physics records damage when one happens ([`physics`]). The plant file says
 //! all of it as a user would ([`plant_file`]).
 //!
+//! That is the [`Family::Assembly`]. Other families ([`Family`]) draw process
+//! units instead ([`process`]: tanks with level switches, valves or pumps on a
+//! drifting supply, heaters or coolers with thermostats), positioning cells
+//! ([`positioning`]: electric axes passing cam switches, with a creep speed, a
+//! brake, a clamp and recipes), or both beside an assembly line
+//! ([`GeneratedPlant::generate_family`]).
+//!
 //! ```
 //! use datasets::generated::{GeneratedPlant, Size};
 //! use datasets::sim::SimConfig;
@@ -30,13 +37,16 @@
 //! assert!(!log.events.is_empty());
 //! ```
 //!
-//! The same plant seed and size give the same plant, byte for byte; the run
+//! The same plant seed, size and family give the same plant, byte for byte
+//! (and [`GeneratedPlant::generate`] the assembly plants it always gave); the run
 //! seed ([`SimConfig::seed`]) draws the run: the drift of each component's
 //! timing, each stroke's jitter, the refills, arrivals and departures.
 
 pub mod layout;
 pub mod physics;
 pub mod plant_file;
+pub mod positioning;
+pub mod process;
 pub mod program;
 
 use std::path::Path;
@@ -44,7 +54,7 @@ use std::sync::Arc;
 
 use vocabulary::Plant;
 
-pub use layout::{Layout, Size};
+pub use layout::{Family, Layout, Size};
 pub use physics::GeneratedPhysics;
 pub use program::StepChains;
 
@@ -62,9 +72,22 @@ impl GeneratedPlant {
     /// The plant of `seed` and `size`. An error is a bug of the generator: the
     /// plant file it wrote does not load.
     pub fn generate(seed: u64, size: Size) -> Result<GeneratedPlant, String> {
-        let layout = Layout::generate(seed, size);
+        GeneratedPlant::generate_family(seed, size, Family::Assembly)
+    }
+
+    /// The plant of `seed` and `size` in `family`; [`Family::Assembly`] gives
+    /// the plants of [`GeneratedPlant::generate`].
+    pub fn generate_family(
+        seed: u64,
+        size: Size,
+        family: Family,
+    ) -> Result<GeneratedPlant, String> {
+        let layout = Layout::generate_family(seed, size, family);
         let toml = plant_file::plant_toml(&layout);
-        let path = format!("generated plant {seed} ({})", size.name());
+        let path = match family {
+            Family::Assembly => format!("generated plant {seed} ({})", size.name()),
+            f => format!("generated plant {seed} ({}, {})", size.name(), f.name()),
+        };
         let plant = Plant::parse(&toml, Path::new(&path)).map_err(|e| e.to_string())?;
         Ok(GeneratedPlant {
             layout: Arc::new(layout),

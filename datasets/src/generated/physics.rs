@@ -20,14 +20,20 @@
 //! rod in its nest; `workpiece_dropped` when a gripper lets go between
 //! positions or a workpiece is pushed onto a table that is not there;
 //! `workpiece_jam` when a workpiece is delivered onto an occupied place.
+//!
+//! Tanks and positioning cells keep their own state and damage
+//! ([`super::process`], [`super::positioning`]). A `slow` fault stretches the
+//! nominal times of the component it names, from the stroke under way on.
 
 use std::sync::Arc;
 
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use vocabulary::{FaultTemplate, Plant, Time};
+use vocabulary::{FaultTemplate, Plant, Time, fault::Factor};
 
 use super::layout::{DRIFT, Hazard, Layout, Middle, PlaceKind, Stage};
+use super::positioning::{CarriageBlock, CellState};
+use super::process::TankState;
 use crate::sim::{Damage, Physics};
 
 /// Distance from an end within which an end switch is on.
@@ -63,6 +69,8 @@ struct AxisState {
     speed: f64,
     drift: f64,
     block: Option<Block>,
+    /// A `slow` fault's factor on its strokes.
+    slow: Option<Factor>,
     rng: ChaCha8Rng,
 }
 
@@ -70,6 +78,7 @@ struct AxisState {
 struct GripperState {
     level: f64,
     drift: f64,
+    slow: Option<Factor>,
     /// The workpiece held, by index.
     holding: Option<usize>,
 }
@@ -80,6 +89,7 @@ struct ConveyorState {
     speed: f64,
     drift: f64,
     running: bool,
+    slow: Option<Factor>,
     rng: ChaCha8Rng,
 }
 
@@ -191,6 +201,8 @@ pub struct GeneratedPhysics {
     magazines: Vec<MagazineState>,
     workpieces: Vec<Workpiece>,
     around: Environment,
+    tanks: Vec<TankState>,
+    cells: Vec<CellState>,
     /// Per hazard: whether it is being recorded already (one record per incident).
     latched: Vec<bool>,
     last_t: Option<Time>,
@@ -223,6 +235,7 @@ impl GeneratedPhysics {
                     speed: 0.0,
                     drift: 1.0,
                     block: None,
+                    slow: None,
                     rng: zero.clone(),
                 }
             })
@@ -234,6 +247,7 @@ impl GeneratedPhysics {
                 GripperState {
                     level: 0.0,
                     drift: 1.0,
+                    slow: None,
                     holding: None
                 };
                 layout.grippers.len()
@@ -243,6 +257,7 @@ impl GeneratedPhysics {
                     speed: 0.0,
                     drift: 1.0,
                     running: false,
+                    slow: None,
                     rng: zero.clone(),
                 };
                 layout.conveyors.len()
@@ -251,11 +266,21 @@ impl GeneratedPhysics {
                 MagazineState {
                     count: 0,
                     refill_at: None,
-                    rng: zero,
+                    rng: zero.clone(),
                 };
                 layout.magazines.len()
             ],
             workpieces: Vec::new(),
+            tanks: layout
+                .tanks
+                .iter()
+                .map(|_| TankState::new(zero.clone()))
+                .collect(),
+            cells: layout
+                .cells
+                .iter()
+                .map(|c| CellState::new(c, zero.clone()))
+                .collect(),
             around: Environment {
                 cycles: vec![0; layout.stations.len()],
                 ..Environment::default()
@@ -302,6 +327,13 @@ impl GeneratedPhysics {
         }
         self.around.feed_rng = Some(next());
         self.around.downstream_rng = Some(next());
+        // Tanks and cells draw after the line, so that a line keeps its draws.
+        for t in &mut self.tanks {
+            t.seed(next());
+        }
+        for c in &mut self.cells {
+            c.seed(next());
+        }
         self.seeded = true;
     }
 
@@ -317,7 +349,10 @@ impl GeneratedPhysics {
             };
             if valve != a.valve || a.speed == 0.0 {
                 a.valve = valve;
-                let nominal = if valve { spec.out_time } else { spec.back_time };
+                let mut nominal = if valve { spec.out_time } else { spec.back_time };
+                if let Some(f) = a.slow {
+                    nominal = f.stretch(nominal);
+                }
                 let jitter = a.rng.random_range(-spec.jitter..=spec.jitter);
                 a.speed = 1.0 / (nominal as f64 * a.drift * (1.0 + jitter));
             }
@@ -483,8 +518,11 @@ impl GeneratedPhysics {
             let state = &mut self.conveyors[c];
             if on && !state.running {
                 let jitter = state.rng.random_range(-0.02..=0.02);
-                let travel =
-                    self.layout.conveyors[c].travel_time as f64 * state.drift * (1.0 + jitter);
+                let mut travel = self.layout.conveyors[c].travel_time;
+                if let Some(f) = state.slow {
+                    travel = f.stretch(travel);
+                }
+                let travel = travel as f64 * state.drift * (1.0 + jitter);
                 state.speed = (1.0 - WORKPIECE) / travel;
             }
             state.running = on;
@@ -517,12 +555,15 @@ impl GeneratedPhysics {
         for (g, spec) in layout.grippers.iter().enumerate() {
             let on = act[spec.order];
             let state = &mut self.grippers[g];
-            let time = if on {
+            let mut time = if on {
                 spec.grip_time
             } else {
                 spec.release_time
-            } as f64
-                * state.drift;
+            };
+            if let Some(f) = state.slow {
+                time = f.stretch(time);
+            }
+            let time = time as f64 * state.drift;
             state.level = if on {
                 (state.level + dt / time).min(1.0)
             } else {
@@ -661,6 +702,56 @@ impl GeneratedPhysics {
         }
     }
 
+    /// Work done by each unit so far: workpieces delivered by each station,
+    /// then batches of each tank and workpieces of each cell.
+    pub fn unit_cycles(&self) -> Vec<u64> {
+        let mut out = self.around.cycles.clone();
+        out.extend(self.tanks.iter().map(TankState::batches));
+        out.extend(self.cells.iter().map(CellState::delivered));
+        out
+    }
+
+    /// A blocking fault of a cell's carriage; `None` if `template` names no
+    /// carriage.
+    fn inject_carriage_fault(&mut self, template: &FaultTemplate) -> Option<Result<(), String>> {
+        let (element, ends) = match template {
+            FaultTemplate::BlockedAt { element, at } => (element, vec![at]),
+            FaultTemplate::BlockedBetween { element, from, to } => (element, vec![from, to]),
+            _ => return None,
+        };
+        let k = self.layout.cells.iter().position(|c| &c.tag == element)?;
+        let cell = &self.layout.cells[k];
+        let mut at = Vec::new();
+        for name in ends {
+            let position = self
+                .layout
+                .signals
+                .iter()
+                .position(|s| &s.name == name)
+                .and_then(|s| cell.position_of(s));
+            match position {
+                Some(p) => at.push(p),
+                None => {
+                    return Some(Err(format!(
+                        "{name} is not a cam switch of axis {}",
+                        cell.tag
+                    )));
+                }
+            }
+        }
+        let block = match at.as_slice() {
+            [p] => CarriageBlock::At(*p),
+            [a, b] if a != b => CarriageBlock::Between {
+                from: *a,
+                to: *b,
+                frozen: false,
+            },
+            _ => return Some(Err(format!("{template}: the two positions must differ"))),
+        };
+        self.cells[k].block(block);
+        Some(Ok(()))
+    }
+
     fn axis_of_element(&self, element: &str) -> Result<usize, String> {
         self.layout
             .axes
@@ -710,6 +801,13 @@ impl Physics for GeneratedPhysics {
         self.grip(dt, act, t, damage);
         self.surroundings(t);
         self.check_hazards(t, damage);
+        for (state, tank) in self.tanks.iter_mut().zip(&self.layout.tanks) {
+            state.advance(tank, t, dt, act, damage);
+        }
+        for (state, cell) in self.cells.iter_mut().zip(&self.layout.cells) {
+            let clamp = self.axes[cell.clamp].r;
+            state.advance(cell, (t, dt), act, clamp, damage);
+        }
         self.workpieces.retain(|w| w.loc != Loc::Gone);
         for g in &mut self.grippers {
             // Indices shift when workpieces are removed: find the held one again.
@@ -762,6 +860,12 @@ impl Physics for GeneratedPhysics {
         for (m, spec) in self.magazines.iter().zip(&self.layout.magazines) {
             io[spec.empty] = m.count == 0 && !self.occupied(spec.outlet);
         }
+        for (state, tank) in self.tanks.iter().zip(&self.layout.tanks) {
+            state.read(tank, io);
+        }
+        for (state, cell) in self.cells.iter().zip(&self.layout.cells) {
+            state.read(cell, io);
+        }
         for (p, place) in self.layout.places.iter().enumerate() {
             let Some(s) = place.sensor else { continue };
             match place.kind {
@@ -773,6 +877,9 @@ impl Physics for GeneratedPhysics {
     }
 
     fn inject_element_fault(&mut self, template: &FaultTemplate) -> Result<(), String> {
+        if let Some(result) = self.inject_carriage_fault(template) {
+            return result;
+        }
         let block = match template {
             FaultTemplate::BlockedAt { element, at } => {
                 let axis = self.axis_of_element(element)?;
@@ -803,6 +910,60 @@ impl Physics for GeneratedPhysics {
         Ok(())
     }
 
+    fn inject_slow(&mut self, target: &str, factor: Factor) -> Result<(), String> {
+        let layout = Arc::clone(&self.layout);
+        let signal = layout.signals.iter().position(|s| s.name == target);
+        let is = |s: usize| signal == Some(s);
+        if let Some(k) = layout
+            .axes
+            .iter()
+            .position(|a| a.tag == target || is(a.out) || a.back.is_some_and(is))
+        {
+            let a = &mut self.axes[k];
+            a.slow = Some(factor);
+            // The stroke under way slows down too.
+            a.speed /= factor.get();
+            return Ok(());
+        }
+        if let Some(k) = layout
+            .grippers
+            .iter()
+            .position(|g| g.tag == target || is(g.order))
+        {
+            self.grippers[k].slow = Some(factor);
+            return Ok(());
+        }
+        if let Some(k) = layout
+            .conveyors
+            .iter()
+            .position(|c| c.tag == target || is(c.motor))
+        {
+            let c = &mut self.conveyors[k];
+            c.slow = Some(factor);
+            c.speed /= factor.get();
+            return Ok(());
+        }
+        if let Some(s) = signal {
+            for (state, tank) in self.tanks.iter_mut().zip(&layout.tanks) {
+                if state.slow(tank, s, factor) {
+                    return Ok(());
+                }
+            }
+        }
+        if let Some(k) = layout
+            .cells
+            .iter()
+            .position(|c| c.tag == target || c.orders().into_iter().any(is))
+        {
+            self.cells[k].slow(factor);
+            return Ok(());
+        }
+        Err(format!(
+            "plant '{}' has no element or actuator {target} that moves",
+            layout.name
+        ))
+    }
+
     fn counters(&self) -> Vec<(String, u64)> {
         let mut out = vec![
             ("workpieces_delivered".to_string(), self.around.delivered),
@@ -811,6 +972,12 @@ impl Physics for GeneratedPhysics {
         ];
         for (k, n) in self.around.cycles.iter().enumerate() {
             out.push((format!("station{}_cycles", k + 1), *n));
+        }
+        for (state, tank) in self.tanks.iter().zip(&self.layout.tanks) {
+            out.push((format!("unit{}_batches", tank.number), state.batches()));
+        }
+        for (state, cell) in self.cells.iter().zip(&self.layout.cells) {
+            out.push((format!("unit{}_delivered", cell.number), state.delivered()));
         }
         out
     }

@@ -5,7 +5,9 @@
 
 use std::fmt::Write;
 
-use super::layout::{Hazard, Layout, Middle, PartSpec, PlaceKind, Stage, Template};
+use super::layout::{
+    Element, Family, Hazard, Layout, Middle, PartSpec, PlaceKind, Stage, Template,
+};
 
 /// The plant file of `layout`.
 pub fn plant_toml(layout: &Layout) -> String {
@@ -63,6 +65,9 @@ fn header(layout: &Layout, out: &mut String) {
     } else {
         "the control program waits for ever for each sensor, with no timeout"
     };
+    if layout.family != Family::Assembly {
+        return family_header(layout, program, out);
+    }
     comment(
         &format!(
             "Generated plant {} ({}): {} station(s) in a line, {} parts, {} signals; \
@@ -89,6 +94,72 @@ fn header(layout: &Layout, out: &mut String) {
         "name = {}\nscan_period_ms = {ms}\ntime_unit = \"ms\"\n",
         quoted(&layout.name)
     );
+}
+
+/// The header of a plant of another family than the assembly lines: the same
+/// facts, and each tank and cell in words.
+fn family_header(layout: &Layout, program: &str, out: &mut String) {
+    comment(
+        &format!(
+            "Generated plant {} ({}, {} family): {} station(s) in a line, {} tank(s), {} \
+             positioning cell(s), {} parts, {} signals; PLC scan {} ms; {program}. Written by \
+             `gardefou simulate --plant generated --plant-seed {} --size {} --family {}`.",
+            layout.seed,
+            layout.size.name(),
+            layout.family.name(),
+            layout.stations.len(),
+            layout.tanks.len(),
+            layout.cells.len(),
+            layout.parts.len(),
+            layout.signals.len(),
+            layout.scan_period / vocabulary::MS,
+            layout.seed,
+            layout.size.name(),
+            layout.family.name(),
+        ),
+        out,
+    );
+    for station in &layout.stations {
+        out.push_str("#\n");
+        comment(&station_words(layout, station), out);
+    }
+    for tank in &layout.tanks {
+        out.push_str("#\n");
+        comment(&super::process::words(layout, tank), out);
+    }
+    for cell in &layout.cells {
+        out.push_str("#\n");
+        comment(&super::positioning::words(layout, cell), out);
+    }
+    let ms = layout.scan_period as f64 / vocabulary::MS as f64;
+    let _ = write!(
+        out,
+        "name = {}\nscan_period_ms = {ms}\ntime_unit = \"ms\"\n",
+        quoted(&layout.name)
+    );
+}
+
+/// A part's moving element: its name, the sensors it drives and the orders
+/// that drive it.
+fn element(layout: &Layout, part: &PartSpec) -> Option<(String, Vec<usize>, Vec<usize>)> {
+    match part.element? {
+        Element::Axis(e) => {
+            let a = &layout.axes[e];
+            Some((
+                a.tag.clone(),
+                a.at0.into_iter().chain(a.at1).collect(),
+                std::iter::once(a.out).chain(a.back).collect(),
+            ))
+        }
+        Element::Carriage(c) => {
+            let c = &layout.cells[c];
+            Some((
+                c.tag.clone(),
+                c.positions.iter().map(|p| p.cam).chain([c.zone]).collect(),
+                c.orders().to_vec(),
+            ))
+        }
+    }
 }
 
 fn station_words(layout: &Layout, station: &super::layout::Station) -> String {
@@ -188,11 +259,12 @@ fn parts(layout: &Layout, out: &mut String) {
             list(layout, &p.actuators),
             list(layout, &p.sensors)
         );
-        if let Some(e) = p.element {
-            let axis = &layout.axes[e];
-            let ends: Vec<usize> = axis.at0.into_iter().chain(axis.at1).collect();
-            let _ = writeln!(out, "element = {}", quoted(&axis.tag));
-            let _ = writeln!(out, "drives = {}", list(layout, &ends));
+        if let Some((tag, drives, _)) = element(layout, p) {
+            let _ = writeln!(out, "element = {}", quoted(&tag));
+            let _ = writeln!(out, "drives = {}", list(layout, &drives));
+        }
+        if !p.inputs.is_empty() {
+            let _ = writeln!(out, "inputs = {}", list(layout, &p.inputs));
         }
     }
 }
@@ -214,7 +286,38 @@ pub fn part_faults(layout: &Layout, part: &PartSpec) -> Vec<(String, String)> {
             out.push((format!("{n}.{t}"), format!("{t}({n})")));
         }
     }
-    if let Some(e) = part.element {
+    if let Some(Element::Carriage(c)) = part.element {
+        // A carriage is blocked at each position, or between two neighbours.
+        let c = &layout.cells[c];
+        let cams: Vec<String> = c.positions.iter().map(|p| name(p.cam)).collect();
+        for s in &cams {
+            out.push((
+                format!("{}.blocked_at.{s}", c.tag),
+                format!("blocked_at({}, {s})", c.tag),
+            ));
+        }
+        for pair in cams.windows(2) {
+            for (from, to) in [(&pair[0], &pair[1]), (&pair[1], &pair[0])] {
+                out.push((
+                    format!("{}.blocked_between.{from}.{to}", c.tag),
+                    format!("blocked_between({}, {from}, {to})", c.tag),
+                ));
+            }
+        }
+    }
+    if layout.family != Family::Assembly {
+        // Slower motions: of the element, or of each order of a part without one.
+        match element(layout, part) {
+            Some((tag, _, _)) => out.push((format!("{tag}.slow"), format!("slow({tag})"))),
+            None => {
+                for &a in &part.actuators {
+                    let n = name(a);
+                    out.push((format!("{n}.slow"), format!("slow({n})")));
+                }
+            }
+        }
+    }
+    if let Some(Element::Axis(e)) = part.element {
         let a = &layout.axes[e];
         let ends: Vec<String> = a.at0.into_iter().chain(a.at1).map(name).collect();
         for s in &ends {
@@ -247,23 +350,18 @@ fn faults(layout: &Layout, out: &mut String) {
     let mut partitions: Vec<(String, Vec<String>)> = Vec::new();
     for part in &layout.parts {
         let _ = writeln!(out, "# {}", part.name);
-        let element_orders: Vec<usize> = part
-            .element
-            .map(|e| {
-                let a = &layout.axes[e];
-                std::iter::once(a.out).chain(a.back).collect()
-            })
-            .unwrap_or_default();
+        let element = element(layout, part);
+        let element_orders: Vec<usize> = element.as_ref().map(|e| e.2.clone()).unwrap_or_default();
         for (label, template) in part_faults(layout, part) {
             let _ = writeln!(out, "{} = {}", quoted(&label), quoted(&template));
             let target = label.split('.').next().unwrap_or(&label).to_string();
-            let owner = match part.element {
-                Some(e)
+            let owner = match &element {
+                Some((tag, _, _))
                     if element_orders
                         .iter()
                         .any(|&o| layout.signals[o].name == target) =>
                 {
-                    layout.axes[e].tag.clone()
+                    tag.clone()
                 }
                 _ => target,
             };
@@ -296,6 +394,12 @@ pub fn hazard_constraints(layout: &Layout) -> Vec<(String, String)> {
                 place,
             } => delivery(layout, station, stage, place, &mut out),
         }
+    }
+    for tank in &layout.tanks {
+        super::process::constraints(layout, tank, &mut out);
+    }
+    for cell in &layout.cells {
+        super::positioning::constraints(layout, cell, &mut out);
     }
     out
 }

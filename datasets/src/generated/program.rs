@@ -278,11 +278,140 @@ fn partners(layout: &Layout, a: Actor, b: Actor) -> bool {
     })
 }
 
-/// Builds every station's step chain.
+/// Builds every station's step chain, then each tank's and cell's.
 pub fn program(layout: &Layout) -> Vec<StepChain> {
-    (0..layout.stations.len())
+    let mut chains: Vec<StepChain> = (0..layout.stations.len())
         .map(|s| chain(layout, s))
-        .collect()
+        .collect();
+    chains.extend(
+        layout
+            .tanks
+            .iter()
+            .map(|t| super::process::chain(layout, t)),
+    );
+    chains.extend(
+        layout
+            .cells
+            .iter()
+            .map(|c| super::positioning::chain(layout, c)),
+    );
+    chains
+}
+
+/// One step of a chain written step by step (a tank's, a cell's): the orders
+/// written on entering it, what ends it, the orders written on leaving it.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Op {
+    pub(super) name: String,
+    pub(super) enter: Vec<(usize, bool)>,
+    pub(super) done: Condition,
+    pub(super) exit: Vec<(usize, bool)>,
+    /// Longest it may take before a safe stop (none for waits on the
+    /// surroundings, which may be long).
+    pub(super) timeout: Option<Time>,
+}
+
+impl Op {
+    /// A step ending when `signal` reads `value`.
+    pub(super) fn until(name: String, signal: usize, value: bool) -> Op {
+        Op {
+            name,
+            done: Condition {
+                literals: vec![(signal, value)],
+                after: None,
+            },
+            ..Op::default()
+        }
+    }
+
+    /// A step ending after `time`.
+    pub(super) fn wait(name: String, time: Time) -> Op {
+        Op {
+            name,
+            done: Condition {
+                literals: Vec::new(),
+                after: Some(time),
+            },
+            ..Op::default()
+        }
+    }
+}
+
+/// Writes a chain step by step: sequences, selections on a sensor, loops.
+#[derive(Debug, Default)]
+pub(super) struct ChainWriter {
+    ops: Vec<Op>,
+    transitions: Vec<Transition>,
+}
+
+impl ChainWriter {
+    /// Adds a step; returns it.
+    pub(super) fn op(&mut self, op: Op) -> usize {
+        self.ops.push(op);
+        self.ops.len() - 1
+    }
+
+    /// From `from`, once it is done and `extra` holds, into `to`: writes
+    /// `from`'s exit orders, then `to`'s entry orders.
+    pub(super) fn link(&mut self, from: usize, to: usize, extra: &[(usize, bool)]) {
+        let mut condition = self.ops[from].done.clone();
+        condition.literals.extend_from_slice(extra);
+        let mut actions = self.ops[from].exit.clone();
+        actions.extend(self.ops[to].enter.iter().copied());
+        self.transitions.push(Transition {
+            from: vec![from],
+            to: vec![to],
+            condition,
+            actions,
+            timeout: false,
+        });
+    }
+
+    /// `ops` in sequence after `from` (entered when `extra` holds too);
+    /// returns the last step, or `from` when there is none.
+    pub(super) fn then(&mut self, from: usize, extra: &[(usize, bool)], ops: Vec<Op>) -> usize {
+        let mut last = from;
+        for (k, op) in ops.into_iter().enumerate() {
+            let step = self.op(op);
+            self.link(last, step, if k == 0 { extra } else { &[] });
+            last = step;
+        }
+        last
+    }
+
+    /// The chain of `station`, starting in `initial`; with `timeouts`, a step
+    /// that outlasts its timeout stops the unit with the orders of `stop`.
+    pub(super) fn finish(
+        mut self,
+        station: usize,
+        initial: usize,
+        stop: Vec<(usize, bool)>,
+        timeouts: bool,
+    ) -> StepChain {
+        if timeouts {
+            for (k, op) in self.ops.iter().enumerate() {
+                if let Some(limit) = op.timeout {
+                    self.transitions.push(Transition {
+                        from: vec![k],
+                        to: Vec::new(),
+                        condition: Condition {
+                            literals: Vec::new(),
+                            after: Some(limit),
+                        },
+                        actions: Vec::new(),
+                        timeout: true,
+                    });
+                }
+            }
+        }
+        StepChain {
+            station,
+            steps: self.ops.into_iter().map(|o| o.name).collect(),
+            transitions: self.transitions,
+            initial: vec![initial],
+            stop,
+        }
+    }
 }
 
 /// A maximal run of consecutive home moves, run in a parallel branch that
