@@ -6,7 +6,8 @@
 # Usage: bash benches/generality-rerun.sh PLANT_SEED SIZE LABEL ONSET_MS END_MS \
 #            [LEARN_RUNS] [LEARN_MS] [OUT_DIR]
 # (the benchmark prints this line for each disagreement). Set GARDEFOU to a
-# gardefou binary to use it instead of building the release binary.
+# gardefou binary to use it instead of building the release binary; FAMILY
+# to a plant family other than assembly, FACTOR to a slow fault's factor.
 set -euo pipefail
 if [ $# -lt 5 ]; then
   sed -n '2,10p' "$0" >&2
@@ -26,13 +27,13 @@ fi
 # (see evaluation/src/evaluate.rs).
 logs=()
 for r in $(seq 1 "$runs"); do
-  "$g" simulate --plant generated --plant-seed "$seed" --size "$size" --seed "$r" \
+  "$g" simulate --plant generated --family "${FAMILY:-assembly}" --plant-seed "$seed" --size "$size" --seed "$r" \
     --duration "${learn_ms}ms" --out "$out/learn$r" 2>/dev/null
   logs+=("$out/learn$r/events.csv")
 done
 "$g" learn -q --plant "$out/learn1/plant.toml" "${logs[@]}" -o "$out/model.json"
-"$g" simulate --plant generated --plant-seed "$seed" --size "$size" --seed 200 \
-  --duration "${end}ms" --fault "$label@${onset}ms" --out "$out/fault" 2>/dev/null
+"$g" simulate --plant generated --family "${FAMILY:-assembly}" --plant-seed "$seed" --size "$size" --seed 200 \
+  --duration "${end}ms" --fault "$label@${onset}ms${FACTOR:+:x$FACTOR}" --out "$out/fault" 2>/dev/null
 echo "== truth ($out/fault/truth.json)"
 cat "$out/fault/truth.json"
 echo "== verdicts (gardefou diagnose --end $end)"

@@ -2,7 +2,8 @@
 //!
 //! ```sh
 //! cargo bench -p evaluation --bench generality -- [--quick] [--plants 50] [--first-seed 1]
-//!     [--sizes small,medium,large] [--jobs N] [--json FILE] [--markdown FILE]
+//!     [--sizes small,medium,large] [--families assembly,process,axes,mixed]
+//!     [--jobs N] [--json FILE] [--markdown FILE]
 //! ```
 //!
 //! Plants are evaluated in parallel, one per core. The table goes to stdout
@@ -16,9 +17,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use clap::Parser;
-use datasets::generated::Size;
+use datasets::generated::{Family, Size};
 use evaluation::summary::{describe, disagreement_table, disagreements, table, template_table};
-use evaluation::{PlantOutcome, Settings, evaluate};
+use evaluation::{PlantOutcome, Settings, evaluate_family};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Learn, replay and check on generated plants; print the rates.
@@ -36,6 +37,13 @@ struct Args {
     /// Sizes, taken in turn.
     #[arg(long, value_delimiter = ',', default_value = "small,medium,large")]
     sizes: Vec<Size>,
+    /// Plant families, taken in turn (each with every size in turn).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "assembly,process,axes,mixed"
+    )]
+    families: Vec<Family>,
     /// Plants evaluated at once [default: the cores].
     #[arg(long)]
     jobs: Option<usize>,
@@ -62,8 +70,19 @@ fn main() {
         Settings::full()
     };
     let count = args.plants.unwrap_or(if args.quick { 6 } else { 50 });
-    let plants: Vec<(u64, Size)> = (0..count)
-        .map(|k| (args.first_seed + k as u64, args.sizes[k % args.sizes.len()]))
+    if args.families.is_empty() {
+        eprintln!("error: --families needs at least one family");
+        std::process::exit(2);
+    }
+    let (sizes, families) = (args.sizes.len(), args.families.len());
+    let plants: Vec<(u64, Size, Family)> = (0..count)
+        .map(|k| {
+            (
+                args.first_seed + k as u64,
+                args.sizes[k % sizes],
+                args.families[k / sizes % families],
+            )
+        })
         .collect();
     let jobs = args
         .jobs
@@ -100,7 +119,7 @@ fn write(path: &PathBuf, bytes: &[u8]) {
 
 /// Evaluates every plant on `jobs` threads, largest first (the longest jobs
 /// start first, so the threads finish together); outcomes in plant order.
-fn run_all(plants: &[(u64, Size)], settings: &Settings, jobs: usize) -> Vec<PlantOutcome> {
+fn run_all(plants: &[(u64, Size, Family)], settings: &Settings, jobs: usize) -> Vec<PlantOutcome> {
     let mut order: Vec<usize> = (0..plants.len()).collect();
     order.sort_by_key(|&k| std::cmp::Reverse(plants[k].1));
     let bar = if std::io::stderr().is_terminal() {
@@ -123,8 +142,8 @@ fn run_all(plants: &[(u64, Size)], settings: &Settings, jobs: usize) -> Vec<Plan
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(&k) = order.get(i) else { break };
-                    let (seed, size) = plants[k];
-                    let outcome = evaluate(seed, size, settings);
+                    let (seed, size, family) = plants[k];
+                    let outcome = evaluate_family(seed, size, family, settings);
                     bar.set_message(format!("{} done", outcome.name));
                     bar.inc(1);
                     if let Ok(mut r) = results.lock() {

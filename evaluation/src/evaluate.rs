@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::time::Instant;
 
-use datasets::generated::{GeneratedPlant, Size};
+use datasets::generated::{Family, GeneratedPlant, Size};
 use datasets::inject::Injection;
 use diagnoser::diagnosis::compile::Compiled;
 use diagnoser::diagnosis::diagnosability::check;
@@ -127,6 +127,8 @@ pub struct PlantOutcome {
     pub seed: u64,
     /// Its size.
     pub size: &'static str,
+    /// Its family.
+    pub family: &'static str,
     /// Its name.
     pub name: String,
     /// Parts.
@@ -203,11 +205,17 @@ fn injections(label: &str, template: &FaultTemplate, onset: Time) -> Vec<Injecti
         .collect()
 }
 
-/// Evaluates plant `seed` of `size`.
+/// Evaluates assembly plant `seed` of `size`.
 pub fn evaluate(seed: u64, size: Size, settings: &Settings) -> PlantOutcome {
+    evaluate_family(seed, size, Family::Assembly, settings)
+}
+
+/// Evaluates plant `seed` of `size` and `family`.
+pub fn evaluate_family(seed: u64, size: Size, family: Family, settings: &Settings) -> PlantOutcome {
     let mut out = PlantOutcome {
         seed,
         size: size.name(),
+        family: family.name(),
         name: String::new(),
         parts: 0,
         signals: 0,
@@ -221,14 +229,20 @@ pub fn evaluate(seed: u64, size: Size, settings: &Settings) -> PlantOutcome {
         seconds: Seconds::default(),
         error: None,
     };
-    if let Err(e) = run(seed, size, settings, &mut out) {
+    if let Err(e) = run(seed, size, family, settings, &mut out) {
         out.error = Some(e);
     }
     out
 }
 
-fn run(seed: u64, size: Size, settings: &Settings, out: &mut PlantOutcome) -> Result<(), String> {
-    let g = GeneratedPlant::generate(seed, size)?;
+fn run(
+    seed: u64,
+    size: Size,
+    family: Family,
+    settings: &Settings,
+    out: &mut PlantOutcome,
+) -> Result<(), String> {
+    let g = GeneratedPlant::generate_family(seed, size, family)?;
     let plant = g.plant();
     out.name = plant.name.clone();
     out.parts = plant.parts.len();

@@ -22,4 +22,4 @@ pub mod judge;
 pub mod runs;
 pub mod summary;
 
-pub use evaluate::{PlantOutcome, Settings, evaluate};
+pub use evaluate::{PlantOutcome, Settings, evaluate, evaluate_family};

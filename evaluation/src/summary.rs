@@ -151,6 +151,15 @@ pub fn table(outcomes: &[PlantOutcome]) -> String {
             rows.push((size.to_string(), t));
         }
     }
+    for family in ["assembly", "process", "axes", "mixed"] {
+        let mut t = Totals::default();
+        for p in outcomes.iter().filter(|p| p.family == family) {
+            t.add(p);
+        }
+        if t.plants + t.errors > 0 && t.plants + t.errors < outcomes.len() {
+            rows.push((family.to_string(), t));
+        }
+    }
     let mut all = Totals::default();
     for p in outcomes {
         all.add(p);
@@ -247,8 +256,12 @@ pub struct Disagreement {
     pub seed: u64,
     /// Plant size.
     pub size: &'static str,
+    /// Plant family.
+    pub family: &'static str,
     /// The fault.
     pub label: String,
+    /// A `slow` fault's factor.
+    pub factor: Option<f64>,
     /// Its onset, ms.
     pub onset_ms: i64,
     /// The run's last scan, ms.
@@ -264,8 +277,15 @@ pub struct Disagreement {
 impl Disagreement {
     /// The command that replays this one fault alone.
     pub fn rerun(&self, settings: &Settings) -> String {
+        let mut env = String::new();
+        if self.family != "assembly" {
+            env.push_str(&format!("FAMILY={} ", self.family));
+        }
+        if let Some(f) = self.factor {
+            env.push_str(&format!("FACTOR={f} "));
+        }
         format!(
-            "bash benches/generality-rerun.sh {} {} {} {} {} {} {}",
+            "{env}bash benches/generality-rerun.sh {} {} {} {} {} {} {}",
             self.seed,
             self.size,
             self.label,
@@ -360,7 +380,9 @@ pub fn disagreements(outcomes: &[PlantOutcome]) -> Vec<Disagreement> {
             out.push(Disagreement {
                 seed: p.seed,
                 size: p.size,
+                family: p.family,
                 label: r.label.clone(),
+                factor: r.factor,
                 onset_ms: r.onset_ms,
                 end_ms: r.end_ms,
                 template: r.template.split('(').next().unwrap_or("").to_string(),

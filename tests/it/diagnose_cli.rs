@@ -111,9 +111,9 @@ fn f2_turns_ambiguous_then_certain() {
     assert_eq!(labels(second), ["F2", "F5"]);
     assert_eq!(second["t"].as_f64(), Some(602_990.0));
     assert!(
-        second["reason"]
-            .as_str()
-            .is_some_and(|r| r.ends_with("normal after a glitch at 602890 ms ruled out at 602990 ms")),
+        second["reason"].as_str().is_some_and(
+            |r| r.ends_with("normal after a glitch at 602890 ms ruled out at 602990 ms")
+        ),
         "{second}"
     );
     // The plant view agrees.
