@@ -80,11 +80,14 @@ pub fn part_of(plant: &Plant, template: &FaultTemplate) -> Option<String> {
                 .find(|p| p.sensors.contains(&id) || p.actuators.contains(&id))
         }
         None => {
-            let element = template.arguments()[0];
-            plant
-                .parts
-                .iter()
-                .find(|p| p.element.as_deref() == Some(element))
+            // An element's fault, or a slow motion of an element or of what
+            // an actuator drives.
+            let x = template.arguments()[0];
+            let actuator = plant.signals.id(x);
+            plant.parts.iter().find(|p| {
+                p.element.as_deref() == Some(x)
+                    || actuator.is_some_and(|a| p.actuators.contains(&a))
+            })
         }
     };
     part.map(|p| p.name.clone())

@@ -2,7 +2,7 @@
 //! are the runs with the fault from the start, and one plant goes through the
 //! whole chain with sensible figures.
 
-use datasets::generated::{GeneratedPlant, Size};
+use datasets::generated::{Family, GeneratedPlant, Size};
 use datasets::inject::Injection;
 use datasets::sim::{MemorySink, SimConfig, run_with_showing};
 use diagnoser::{MS, SECOND};
@@ -277,9 +277,13 @@ fn on_a_healthy_generated_plant_an_unseen_glitch_gives_no_flag() {
     use learning::learn::{LearnOptions, Learner};
     use logs::LogStream;
 
-    let mut tried = 0;
-    for seed in 1..=10 {
-        let g = GeneratedPlant::generate(seed, Size::Small).expect("a plant");
+    let mut tried = std::collections::HashMap::new();
+    let plants = (1..=8).map(|seed| (Family::Process, seed));
+    for (family, seed) in plants.chain((1..=10).map(|seed| (Family::Assembly, seed))) {
+        if tried.get(&family).is_some_and(|&n| n >= 2) {
+            continue;
+        }
+        let g = GeneratedPlant::generate_family(seed, Size::Small, family).expect("a plant");
         let plant = g.plant();
         let mut learner = Learner::new(plant, LearnOptions::default()).expect("learner");
         for run_seed in 1..=2 {
@@ -340,7 +344,7 @@ fn on_a_healthy_generated_plant_an_unseen_glitch_gives_no_flag() {
             let verdicts = replay(&mut diagnoser, &glitched);
             let own: Vec<_> = verdicts.iter().filter(|v| v.part == part.name).collect();
             let what = format!(
-                "plant {seed}, {} bouncing at {at} ns: {own:#?}",
+                "{family} plant {seed}, {} bouncing at {at} ns: {own:#?}",
                 plant.signals.name(sensor)
             );
             assert!(
@@ -350,14 +354,37 @@ fn on_a_healthy_generated_plant_an_unseen_glitch_gives_no_flag() {
             if own.is_empty() {
                 continue; // the bounce fitted the model
             }
-            tried += 1;
+            *tried.entry(family).or_insert(0) += 1;
             let last = own.last().expect("verdicts");
             assert_eq!(last.verdict, VerdictKind::Normal, "{what}");
             assert!(last.reason.starts_with("back to normal"), "{what}");
         }
-        if tried >= 4 {
-            return;
+    }
+    for family in [Family::Process, Family::Assembly] {
+        let n = tried.get(&family).copied().unwrap_or(0);
+        assert!(
+            n >= 2,
+            "only {n} bounces left normal on {family} plants: too few tried"
+        );
+    }
+}
+
+/// Every fault a generated plant of any family declares is judged on a
+/// part: `slow` of an actuator as well as of an element.
+#[test]
+fn every_declared_fault_has_its_part() {
+    use datasets::generated::Family;
+    use evaluation::judge::part_of;
+    for family in Family::ALL {
+        for seed in 1..=4 {
+            let g = GeneratedPlant::generate_family(seed, Size::Small, family).expect("a plant");
+            for f in &g.plant().faults {
+                assert!(
+                    part_of(g.plant(), &f.template).is_some(),
+                    "{family} plant {seed}: {} has no part",
+                    f.label
+                );
+            }
         }
     }
-    panic!("only {tried} bounces left normal: the test tries too few");
 }

@@ -1,9 +1,10 @@
-//! Whatever `learn` writes, the other verbs take: on generated plants learned
-//! from logs so short that some sensors never change (a limit switch never
-//! reached, a magazine never empty), the model reads back, `check` and
-//! `filter rewrite` accept it, and the diagnosers build from it.
+//! Whatever `learn` writes, the other verbs take: on generated plants of
+//! every family learned from logs so short that some sensors never change
+//! (a limit switch never reached, an overflow switch, a magazine never
+//! empty), the model reads back, `check` and `filter rewrite` accept it, and
+//! the diagnosers build from it.
 
-use datasets::generated::{GeneratedPlant, Size};
+use datasets::generated::{Family, GeneratedPlant, Size};
 use datasets::sim::SimConfig;
 use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
 use diagnoser::model::Model;
@@ -78,12 +79,16 @@ proptest! {
     #[test]
     fn every_verb_takes_the_model_learn_writes(
         seed in 1u64..400,
+        family in 0usize..4,
         seconds in 5i64..300,
         run in 1u64..1000,
     ) {
-        let plant = GeneratedPlant::generate(seed, Size::Small).expect("a valid plant");
+        let family = Family::ALL[family];
+        let plant = GeneratedPlant::generate_family(seed, Size::Small, family)
+            .expect("a valid plant");
         let (model, _) = learn_briefly(&plant, seconds, run);
-        assert_taken(&plant, &model, &format!("plant {seed}, {seconds} s of run {run}"));
+        let what = format!("{family} plant {seed}, {seconds} s of run {run}");
+        assert_taken(&plant, &model, &what);
     }
 }
 
@@ -93,8 +98,9 @@ proptest! {
 #[test]
 fn a_sensor_that_never_changed_gets_no_estimate() {
     let mut seen_still = 0;
-    for seed in 1..=12 {
-        let plant = GeneratedPlant::generate(seed, Size::Small).expect("a valid plant");
+    for (seed, family) in (1..=12).zip(Family::ALL.into_iter().cycle()) {
+        let plant =
+            GeneratedPlant::generate_family(seed, Size::Small, family).expect("a valid plant");
         let (model, still) = learn_briefly(&plant, 20, 7);
         let model: Model = serde_json::from_str(&model).expect("reads");
         seen_still += still;
