@@ -328,8 +328,8 @@ fn on_a_healthy_generated_plant_an_unseen_glitch_gives_no_flag() {
                 continue;
             };
             let value = (fresh.events.iter())
-                .filter(|e| e.signal == sensor && e.t < at)
-                .last()
+                .rev()
+                .find(|e| e.signal == sensor && e.t < at)
                 .map_or(fresh.initial[sensor.index()], |e| e.value);
             let mut glitched = fresh.clone();
             let back = at + 2 * plant.scan_period;
