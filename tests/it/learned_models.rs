@@ -74,7 +74,7 @@ fn assert_taken(plant: &GeneratedPlant, model: &str, what: &str) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 8, ..ProptestConfig::default() })]
 
     #[test]
     fn every_verb_takes_the_model_learn_writes(
