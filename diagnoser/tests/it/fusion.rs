@@ -60,11 +60,27 @@ impl Reference {
             .filter(|(_, v)| v.verdict != VerdictKind::Normal)
             .collect();
         let is_unknown = |v: &Verdict| v.labels == [UNKNOWN_LABEL];
-        let known: Vec<(usize, &Verdict)> = deviating
-            .iter()
-            .copied()
-            .filter(|(_, v)| !is_unknown(v))
+        // A part that normal after a glitch still explains (`N` among its
+        // labels) counts only when no other part deviates with faults.
+        let tentative = |v: &Verdict| v.labels.iter().any(|l| l == "N");
+        let confirmed: Vec<(usize, &Verdict)> = (deviating.iter().copied())
+            .filter(|(_, v)| !is_unknown(v) && !tentative(v))
             .collect();
+        let normal_too = confirmed.is_empty() && deviating.iter().any(|(_, v)| tentative(v));
+        let faults_of = |v: &Verdict| -> Verdict {
+            let mut v = v.clone();
+            v.labels.retain(|l| l != "N");
+            v
+        };
+        let owned: Vec<(usize, Verdict)> = if normal_too {
+            (deviating.iter())
+                .filter(|(_, v)| tentative(v))
+                .map(|(i, v)| (*i, faults_of(v)))
+                .collect()
+        } else {
+            confirmed.iter().map(|(i, v)| (*i, (*v).clone())).collect()
+        };
+        let known: Vec<(usize, &Verdict)> = owned.iter().map(|(i, v)| (*i, v)).collect();
         let unknown: Vec<&str> = (deviating.iter())
             .filter(|(_, v)| is_unknown(v))
             .map(|(_, v)| v.part.as_str())
@@ -84,7 +100,10 @@ impl Reference {
             .filter(|l| known.iter().all(|(_, v)| v.labels.contains(l)))
             .cloned()
             .collect();
-        let candidates = if common.is_empty() { union } else { common };
+        let mut candidates = if common.is_empty() { union } else { common };
+        if normal_too {
+            candidates.insert(0, "N".to_string());
+        }
         let (labels, mut reason) = if deviating.is_empty() {
             (vec!["N".to_string()], "every part is normal".to_string())
         } else if known.is_empty() {
@@ -103,21 +122,23 @@ impl Reference {
                 unknown.join(", ")
             ));
         }
-        let faulty = labels
+        let faults: &[String] = if normal_too { &labels[1..] } else { &labels };
+        let faulty = faults
             .first()
             .is_some_and(|l| l != "N" && l != UNKNOWN_LABEL);
         let mut suspects: Vec<String> = Vec::new();
         if faulty {
-            for l in &labels {
+            for l in faults {
                 if let Some(p) = self.partition(l)
                     && !suspects.iter().any(|s| s == p)
                 {
                     suspects.push(p.to_string());
                 }
             }
-            let all_in = |p: &str| labels.iter().all(|l| self.partition(l) == Some(p));
+            let all_in = |p: &str| faults.iter().all(|l| self.partition(l) == Some(p));
             if let Some(p) = suspects.first().cloned()
                 && all_in(&p)
+                && !normal_too
             {
                 let flag = Flag::def(p.as_str()).to_string();
                 if !self.flags.contains(&flag) {
@@ -170,7 +191,9 @@ fn verdict(part: usize, choice: u8, labels: &[usize], pool: &[String]) -> Verdic
         0 => vec!["N".to_string()],
         1 => vec![UNKNOWN_LABEL.to_string()],
         _ => {
-            let mut names: Vec<String> = Vec::new();
+            // Choice 2: normal after a glitch beside the faults.
+            let mut names: Vec<String> =
+                (choice == 2).then(|| "N".to_string()).into_iter().collect();
             for &l in labels {
                 let name = &pool[l % pool.len()];
                 if !names.contains(name) {
