@@ -153,31 +153,15 @@ fn as_log(sink: &MemorySink, end: diagnoser::Time) -> evaluation::runs::Log {
 /// diagnosers isolate without the false alarm.
 #[test]
 fn on_a_generated_plant_a_fault_after_an_unknown_episode_is_still_labelled() {
-    use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, VerdictKind};
+    use diagnoser::diagnosis::{PlantDiagnoser, VerdictKind};
     use evaluation::judge::{part_of, replay};
-    use learning::learn::{LearnOptions, Learner};
-    use logs::LogStream;
 
     let onset = 900 * SECOND;
     let mut tried = 0;
     for seed in 1..=12 {
         let g = GeneratedPlant::generate(seed, Size::Small).expect("a plant");
         let plant = g.plant();
-        let mut learner = Learner::new(plant, LearnOptions::default()).expect("learner");
-        for run_seed in 1..=3 {
-            let log = evaluation::runs::fault_free(&g, run_seed, 3600 * SECOND).expect("runs");
-            let stream = LogStream::from_events(
-                "memory",
-                diagnoser::TimeFormat::Numeric(diagnoser::TimeUnit::Ms),
-                log.start,
-                log.initial,
-                log.events,
-            );
-            learner.learn_log(stream, |_| {}).expect("learns");
-        }
-        let model = learner.finish();
-        let mut diagnoser =
-            PlantDiagnoser::new(plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
+        let mut diagnoser = learned_diagnoser(&g, 3);
         let stuck: Vec<Injection> = plant
             .faults
             .iter()
@@ -271,11 +255,9 @@ fn on_a_generated_plant_a_fault_after_an_unknown_episode_is_still_labelled() {
 /// normal after a cycle. Nothing but elimination would make a fault certain.
 #[test]
 fn on_a_healthy_generated_plant_an_unseen_glitch_gives_no_flag() {
-    use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser, VerdictKind};
+    use diagnoser::diagnosis::VerdictKind;
     use diagnoser::{Event, Time};
     use evaluation::judge::replay;
-    use learning::learn::{LearnOptions, Learner};
-    use logs::LogStream;
 
     let mut tried = std::collections::HashMap::new();
     let plants = (1..=8).map(|seed| (Family::Process, seed));
@@ -285,21 +267,7 @@ fn on_a_healthy_generated_plant_an_unseen_glitch_gives_no_flag() {
         }
         let g = GeneratedPlant::generate_family(seed, Size::Small, family).expect("a plant");
         let plant = g.plant();
-        let mut learner = Learner::new(plant, LearnOptions::default()).expect("learner");
-        for run_seed in 1..=2 {
-            let log = evaluation::runs::fault_free(&g, run_seed, 3600 * SECOND).expect("runs");
-            let stream = LogStream::from_events(
-                "memory",
-                diagnoser::TimeFormat::Numeric(diagnoser::TimeUnit::Ms),
-                log.start,
-                log.initial,
-                log.events,
-            );
-            learner.learn_log(stream, |_| {}).expect("learns");
-        }
-        let model = learner.finish();
-        let mut diagnoser =
-            PlantDiagnoser::new(plant, &model, &DiagnoserOptions::default()).expect("diagnoser");
+        let mut diagnoser = learned_diagnoser(&g, 2);
         let fresh = evaluation::runs::fault_free(&g, 100, 1200 * SECOND).expect("runs");
         let healthy = replay(&mut diagnoser, &fresh);
         if !healthy.is_empty() {
@@ -387,4 +355,26 @@ fn every_declared_fault_has_its_part() {
             }
         }
     }
+}
+
+/// The diagnosers of `g` learned from `runs` fault-free hours (run seeds 1, 2, …).
+fn learned_diagnoser(g: &GeneratedPlant, runs: u64) -> diagnoser::diagnosis::PlantDiagnoser {
+    use diagnoser::diagnosis::{DiagnoserOptions, PlantDiagnoser};
+    use learning::learn::{LearnOptions, Learner};
+    use logs::LogStream;
+
+    let mut learner = Learner::new(g.plant(), LearnOptions::default()).expect("learner");
+    for run_seed in 1..=runs {
+        let log = evaluation::runs::fault_free(g, run_seed, 3600 * SECOND).expect("runs");
+        let stream = LogStream::from_events(
+            "memory",
+            diagnoser::TimeFormat::Numeric(diagnoser::TimeUnit::Ms),
+            log.start,
+            log.initial,
+            log.events,
+        );
+        learner.learn_log(stream, |_| {}).expect("learns");
+    }
+    let model = learner.finish();
+    PlantDiagnoser::new(g.plant(), &model, &DiagnoserOptions::default()).expect("diagnoser")
 }

@@ -35,7 +35,7 @@ struct RunState {
     /// The unknown episode the part is in, if any.
     episode: Option<Episode>,
     /// Normal after a glitch, followed since the normal hypothesis died,
-    /// until a fault is confirmed or the part is back to normal.
+    /// until it is ruled out or the part is back to normal.
     watch: Option<Watch>,
     /// When time alone next changes the state of the part's own automaton
     /// (`next_timer` also counts the watch's).
@@ -116,6 +116,19 @@ pub(crate) struct Pending {
     at: Time,
     /// What the part read just before.
     obs: u32,
+}
+
+impl Shadow {
+    /// Time passes to `at`: every deadline of the shadow up to then fires.
+    fn catch_up(&mut self, engine: &mut Engine, at: Time) {
+        while self.timer <= at {
+            let step = engine.fire_at(self.state, &self.origins, self.timer);
+            if (step.state, step.timer) == (self.state, self.timer) {
+                break;
+            }
+            (self.state, self.timer) = (step.state, step.timer);
+        }
+    }
 }
 
 /// A [`Watch`] as data, in a [`PartSnapshot`].
@@ -665,12 +678,12 @@ impl PartRun {
         self.judge_shadow(t, t);
     }
 
-    /// Once the glitch is over (`at`), the shadow is normal as the part was
+    /// Once the glitch is over, the shadow is normal as the part was
     /// before it, moved by what the glitch changed for good as one step at
     /// the moment normal was ruled out: a glitch only hides or fakes edges
     /// for a while, so the part must read what normal operation could have
     /// made of it by then.
-    fn end_glitch(&mut self, at: Time) {
+    fn end_glitch(&mut self) {
         let obs = self.at.obs;
         let Some(sh) = self.at.watch.as_mut().and_then(|w| w.shadow.as_mut()) else {
             return;
@@ -685,31 +698,23 @@ impl PartRun {
             sh.state = step.state;
         }
         sh.timer = self.engine.next_timer(sh.state, &sh.origins, p.at);
-        while sh.timer <= at {
-            let step = self.engine.fire_at(sh.state, &sh.origins, sh.timer);
-            if (step.state, step.timer) == (sh.state, sh.timer) {
-                break;
-            }
-            (sh.state, sh.timer) = (step.state, step.timer);
-        }
     }
 
     /// Time passes to `at` for the watch's shadow (`shown`: the time
     /// verdicts give it, `at - 1` for a deadline).
     #[cold]
     fn watch_time(&mut self, at: Time, shown: Time) {
-        if let Some(sh) = self.at.watch.as_mut().and_then(|w| w.shadow.as_mut()) {
-            if sh.pending.is_some_and(|p| p.until <= at) {
-                self.end_glitch(at);
-            } else if sh.pending.is_none() {
-                while sh.timer <= at {
-                    let step = self.engine.fire_at(sh.state, &sh.origins, sh.timer);
-                    if (step.state, step.timer) == (sh.state, sh.timer) {
-                        break;
-                    }
-                    (sh.state, sh.timer) = (step.state, step.timer);
-                }
-            }
+        let glitch_over = (self.at.watch.as_ref())
+            .and_then(|w| w.shadow.as_ref())
+            .and_then(|sh| sh.pending)
+            .is_some_and(|p| p.until <= at);
+        if glitch_over {
+            self.end_glitch();
+        }
+        if let Some(sh) = self.at.watch.as_mut().and_then(|w| w.shadow.as_mut())
+            && sh.pending.is_none()
+        {
+            sh.catch_up(&mut self.engine, at);
         }
         self.judge_shadow(at, shown);
     }
@@ -757,8 +762,9 @@ impl PartRun {
         run.next_timer = next;
     }
 
-    /// A step under a [`Watch`]: back to normal, confirmed, or the labels
-    /// with normal after a glitch beside them.
+    /// A step under a [`Watch`]: back to normal, normal after a glitch
+    /// ruled out (the faults stand on their own), or the labels with it
+    /// beside them.
     fn settle_watch(
         &mut self,
         t: Time,
